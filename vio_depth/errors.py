@@ -1,0 +1,50 @@
+"""One error hierarchy for everything vio-depth raises on purpose.
+
+The CLI turns any :class:`VioDepthError` into one line on stderr and exit code 1.
+Failures *inside* the per-frame hot loop are statuses with reasons
+(see :class:`vio_depth.types.FrameStatus`), never exceptions.
+"""
+
+from __future__ import annotations
+
+
+class VioDepthError(Exception):
+    """Root of all errors raised deliberately by vio-depth."""
+
+
+class InputError(VioDepthError):
+    """Bad user input: a missing folder, an unreadable file, a wrong shape."""
+
+
+class SequenceFormatError(InputError):
+    """A sequence file is malformed. The message names the file (and line when known)."""
+
+    def __init__(self, path, message: str, line: int | None = None):
+        self.path = str(path)
+        self.line = line
+        where = f"{self.path}:{line}" if line is not None else self.path
+        super().__init__(f"{where}: {message}")
+
+
+class ShapeError(InputError, ValueError):
+    """An array argument has the wrong shape, dtype or non-finite values."""
+
+
+class UnknownNameError(VioDepthError, ValueError):
+    """An unknown preset/registry name. The message lists the valid names."""
+
+    def __init__(self, kind: str, name: str, valid):
+        self.kind = kind
+        self.name = name
+        self.valid = sorted(valid)
+        super().__init__(f"unknown {kind} {name!r}; valid names: {', '.join(self.valid)}")
+
+
+class MissingDependencyError(VioDepthError, ImportError):
+    """An optional dependency is not installed. The message says how to install it."""
+
+    def __init__(self, package: str, extra: str, purpose: str):
+        super().__init__(
+            f"{purpose} needs the optional package {package!r}, which is not installed; "
+            f"install it with: pip install -e '.[{extra}]' (see README.md)"
+        )

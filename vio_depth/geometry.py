@@ -1,0 +1,75 @@
+"""Small rigid-body helpers shared by the pipeline, loaders and simulators.
+
+Conventions: ``T_a_b`` is a (4, 4) transform mapping points expressed in frame ``b``
+into frame ``a`` (so ``T_w_c`` is camera-to-world). Quaternions are ``(qx, qy, qz, qw)``
+as in the TUM trajectory format. Translations are metres, angles radians unless a name
+says ``_deg``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .checks import check_array, check_transform
+
+
+def make_transform(R, t) -> np.ndarray:
+    """Build a (4, 4) transform from ``R: (3, 3)`` and ``t: (3,) metres``."""
+    R = check_array("R", R, (3, 3), finite=True)
+    t = check_array("t", t, (3,), finite=True)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def invert_transform(T) -> np.ndarray:
+    """Inverse of a rigid (4, 4) transform ``T_a_b`` -> ``T_b_a``."""
+    T = check_array("T", T, (4, 4), finite=True)
+    R = T[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+def relative_transform(T_w_a, T_w_b) -> np.ndarray:
+    """``T_a_b`` from two camera-to-world poses ``T_w_a``, ``T_w_b`` ((4, 4) each)."""
+    return invert_transform(T_w_a) @ check_array("T_w_b", T_w_b, (4, 4), finite=True)
+
+
+def rotation_angle_deg(R) -> float:
+    """Angle (degrees) of the rotation ``R: (3, 3)``."""
+    R = check_array("R", R, (3, 3), finite=True)
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
+
+
+def transform_points(T_a_b, points_b) -> np.ndarray:
+    """Map ``points_b: (N, 3)`` (metres, frame b) into frame a with ``T_a_b: (4, 4)``."""
+    T = check_array("T_a_b", T_a_b, (4, 4))
+    p = check_array("points_b", points_b, (None, 3))
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def transform_from_tum(values) -> np.ndarray:
+    """(4, 4) transform from a TUM row ``(tx, ty, tz, qx, qy, qz, qw)`` (metres, unit quaternion)."""
+    v = check_array("values", values, (7,), finite=True)
+    q = v[3:]
+    n = np.linalg.norm(q)
+    if not 0.99 < n < 1.01:
+        raise ValueError(f"quaternion norm {n:.4f} is not 1")
+    return make_transform(Rotation.from_quat(q / n).as_matrix(), v[:3])
+
+
+def transform_to_tum(T) -> np.ndarray:
+    """TUM row ``(tx, ty, tz, qx, qy, qz, qw)`` of a (4, 4) transform."""
+    T = check_transform("T", T)
+    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_quat()])
+
+
+def skew(v) -> np.ndarray:
+    """(3, 3) cross-product matrix of ``v: (3,)``."""
+    x, y, z = check_array("v", v, (3,))
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
