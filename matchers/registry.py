@@ -16,6 +16,9 @@ from .base import Matcher
 # name -> "module:callable"; the callable takes (device: str | None) and returns a Matcher.
 _PRESETS: dict[str, str] = {
     "sift": "matchers.sift:create_sift",
+    "disk+lightglue": "matchers.learned:create_disk_lightglue",
+    "aliked+lightglue": "matchers.learned:create_aliked_lightglue",
+    "xfeat+lighterglue": "matchers.learned:create_xfeat_lighterglue",
 }
 
 
