@@ -83,7 +83,7 @@ class Camera:
             return uv_raw.astype(np.float64, copy=True)
         import cv2
 
-        out = cv2.undistortPointsIter(
+        out = cv2.undistortPoints(
             uv_raw.reshape(-1, 1, 2).astype(np.float64),
             self.K,
             np.asarray(self.dist),

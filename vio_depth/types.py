@@ -123,7 +123,10 @@ class FrameStatus(str, enum.Enum):
 class FrameResult:
     """What the pipeline produced for one frame (one line of ``frames.jsonl``).
 
-    ``depth`` is (H, W) float32 metres with NaN where invalid (or None without metric depth).
+    ``depth`` is (H, W) float32 metres with NaN where invalid (or None without metric depth);
+    ``disparity`` the (H, W) input disparity; ``fit`` the ``AffineFit`` used;
+    ``points_uv`` (N, 2) px / ``points_depth`` (N,) metres the metric points fed to the fit.
+    ``extra`` holds JSON-able diagnostics written to ``frames.jsonl``.
     """
 
     frame: int
@@ -139,6 +142,10 @@ class FrameResult:
     r2: float | None = None
     seconds: float = 0.0
     depth: np.ndarray | None = field(default=None, repr=False)
+    disparity: np.ndarray | None = field(default=None, repr=False)
+    fit: object = field(default=None, repr=False)
+    points_uv: np.ndarray | None = field(default=None, repr=False)
+    points_depth: np.ndarray | None = field(default=None, repr=False)
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -156,5 +163,11 @@ class FrameResult:
             "reason": self.reason,
             "seconds": round(self.seconds, 4),
         }
-        out.update(self.extra)
+        out.update({k: v for k, v in self.extra.items() if _is_json_scalar(v)})
         return out
+
+
+def _is_json_scalar(value) -> bool:
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _is_json_scalar(v) for k, v in value.items())
+    return value is None or isinstance(value, (bool, int, float, str))
