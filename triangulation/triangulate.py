@@ -1,0 +1,433 @@
+"""Two-view triangulation of matched keypoints with a known metric relative pose.
+
+Frames and conventions: ``cur`` is the current camera (the one whose depth map is
+rescaled), ``ref`` the keyframe camera. ``T_ref_cur`` maps points of the current camera
+frame into the reference camera frame (metres); ``x_ref^T F x_cur = 0`` for ideal
+(undistorted) pixels with ``F = K_ref^-T [t]x R K_cur^-1``.
+
+Method (all batched numpy, no per-point Python loop):
+
+1. raw keypoints are undistorted to ideal pinhole pixels (:meth:`Camera.undistort_points`);
+2. Sampson distance of every match to the epipolar geometry, in pixels;
+3. optimal correction of the two observations onto the epipolar geometry (Lindstrom,
+   "Triangulation made easy", CVPR 2010, ``niter2``): the smallest pixel displacement
+   that makes the two viewing rays intersect, i.e. the maximum-likelihood two-view
+   triangulation under isotropic Gaussian pixel noise;
+4. the (now intersecting) rays are triangulated in closed form by the midpoint method;
+5. checks, in this order -- a point gets the **first** failing one:
+
+   ============  =========================================================================
+   EPIPOLAR      Sampson distance > ``max_sampson_px``
+   LOW_PARALLAX  angle between the two viewing rays < ``min_angle_deg``, or geometry
+                 undefined (zero baseline: every point; a match sitting on both epipoles,
+                 where the Sampson distance is undefined; parallel rays); checked before
+                 cheirality because the depth of a low-parallax point is ill-determined
+                 and may flip sign with noise
+   BEHIND_CAMERA point not in front of both cameras (z <= 0 in either)
+   REPROJECTION  reprojection error > ``max_reprojection_px`` in either view
+   DEPTH_RANGE   depth (z in the current camera) outside [``min_depth_m``, ``max_depth_m``]
+   ============  =========================================================================
+
+   Sampson distance and reprojection error are measured in ideal (undistorted) pixels.
+   After the optimal correction the reprojection error in each view equals that view's
+   correction, so REPROJECTION mostly guards numerics and matters when
+   ``max_sampson_px`` is relaxed. The triangulation angle is the angle between the two
+   (corrected) viewing rays, which equals the angle at the point between the two camera
+   centres for a point in front of both cameras.
+
+   A point that passes every check but whose depth uncertainty is not finite (numerically
+   degenerate geometry) is marked LOW_PARALLAX as well, so VALID points always have
+   finite ``depth`` and ``sigma_depth``.
+
+Depth uncertainty ``sigma_depth`` is first-order: the Jacobian of the current-camera
+depth w.r.t. the four ideal pixel coordinates (and, with a pose covariance, w.r.t. the 6
+pose parameters) is computed by central differences of the whole batched pipeline
+(correction + triangulation), then ``var = sigma_px^2 |J_px|^2 + J_pose S J_pose^T``. It
+therefore captures baseline, triangulation angle and position in the image.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from vio_depth.camera import Camera
+from vio_depth.checks import check_array, check_transform
+from vio_depth.errors import InputError
+
+#: baseline (metres) below which a pose is treated as a pure rotation: nothing can be
+#: triangulated and every point is LOW_PARALLAX
+ZERO_BASELINE_M = 1e-9
+
+# central-difference steps of the numerical Jacobians: pixels, radians, metres
+_STEP_PX = 1e-3
+_STEP_ROT = 1e-6
+_STEP_TRANS = 1e-6
+
+# Sampson distance: below this resolution (pixels) floating-point rounding dominates
+_SAMPSON_RESOLUTION_PX = 1e-3
+_ROUNDING_FACTOR = 1e3
+
+
+class PointStatus(enum.IntEnum):
+    """Outcome of one candidate match (see the module docstring for the check order)."""
+
+    VALID = 0
+    EPIPOLAR = 1
+    BEHIND_CAMERA = 2
+    REPROJECTION = 3
+    LOW_PARALLAX = 4
+    DEPTH_RANGE = 5
+
+
+@dataclass(frozen=True)
+class TriangulationSettings:
+    """Thresholds of :func:`triangulate_pair`.
+
+    Attributes:
+        max_sampson_px: largest Sampson distance (first-order total geometric distance of
+            the match to the epipolar geometry, ideal pixels) of an inlier. 1.5 px keeps
+            SIFT matches (sub-pixel keypoints) while rejecting most wrong matches that are
+            not along the epipolar line.
+        max_reprojection_px: largest reprojection error of the triangulated point in
+            either view (ideal pixels).
+        min_angle_deg: smallest triangulation angle (between the two viewing rays). With
+            pixel noise ``s`` and focal ``f`` the relative depth error is about
+            ``s / (f * angle_rad)``: 1 degree gives ~8 % at f = 720 px, s = 1 px (KITTI)
+            -- the rescaler is robust to that, and ``sigma_depth`` tells it which points
+            are weaker; a larger threshold throws away most far points of forward motion.
+        min_depth_m / max_depth_m: accepted depth range in the current camera, metres.
+        pixel_sigma_px: 1-sigma keypoint noise (applied to ideal pixels, both views) used
+            for ``sigma_depth``; 0 disables the pixel term.
+    """
+
+    max_sampson_px: float = 1.5
+    max_reprojection_px: float = 2.0
+    min_angle_deg: float = 1.0
+    min_depth_m: float = 0.1
+    max_depth_m: float = 300.0
+    pixel_sigma_px: float = 1.0
+
+    def __post_init__(self):
+        if not (self.max_sampson_px > 0 and self.max_reprojection_px > 0):
+            raise InputError("triangulation: max_sampson_px and max_reprojection_px must be positive")
+        if not 0.0 <= self.min_angle_deg < 90.0:
+            raise InputError(f"triangulation: min_angle_deg must be in [0, 90), got {self.min_angle_deg}")
+        if not 0.0 <= self.min_depth_m < self.max_depth_m:
+            raise InputError(
+                f"triangulation: need 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}"
+            )
+        if not self.pixel_sigma_px >= 0:
+            raise InputError(f"triangulation: pixel_sigma_px must be >= 0, got {self.pixel_sigma_px}")
+
+
+@dataclass(frozen=True)
+class TriangulatedPoints:
+    """All candidate matches of one frame pair, triangulated, with a status each.
+
+    Attributes:
+        points_cur: (N, 3) metres, points in the current camera frame (NaN when undefined,
+            which only happens for non-VALID points).
+        uv: (N, 2) raw pixels of the observation in the current image (where the
+            rescaler samples the disparity).
+        depth: (N,) metres, z in the current camera (finite for VALID points).
+        sigma_depth: (N,) metres, first-order 1-sigma depth uncertainty.
+        angle_deg: (N,) degrees, triangulation angle between the two viewing rays.
+        sampson_px: (N,) ideal pixels, Sampson distance to the epipolar geometry (NaN
+            where undefined: zero baseline, match on both epipoles).
+        reprojection_px: (N,) ideal pixels, reprojection error, max over the two views.
+        confidence: (N,) matching confidence in [0, 1] (ones when the matcher gave none).
+        status: (N,) uint8 :class:`PointStatus` values.
+    """
+
+    points_cur: np.ndarray
+    uv: np.ndarray
+    depth: np.ndarray
+    sigma_depth: np.ndarray
+    angle_deg: np.ndarray
+    sampson_px: np.ndarray
+    reprojection_px: np.ndarray
+    confidence: np.ndarray
+    status: np.ndarray
+
+    def __post_init__(self):
+        p = check_array("points_cur", self.points_cur, (None, 3))
+        n = len(p)
+        check_array("uv", self.uv, (n, 2))
+        for name in ("depth", "sigma_depth", "angle_deg", "sampson_px", "reprojection_px", "confidence"):
+            check_array(name, getattr(self, name), (n,))
+        check_array("status", self.status, (n,), dtype="int")
+
+    def __len__(self) -> int:
+        return len(self.depth)
+
+    @classmethod
+    def empty(cls) -> "TriangulatedPoints":
+        z = np.zeros(0)
+        return cls(np.zeros((0, 3)), np.zeros((0, 2)), z, z, z, z, z, z, np.zeros(0, np.uint8))
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(N,) bool: status is VALID."""
+        return self.status == PointStatus.VALID
+
+    def subset(self, mask) -> "TriangulatedPoints":
+        """The points selected by ``mask``: (N,) bool, or an integer index array."""
+        m = np.asarray(mask)
+        if m.dtype == np.bool_ and m.shape != (len(self),):
+            raise InputError(f"subset: boolean mask must have shape ({len(self)},), got {m.shape}")
+        return TriangulatedPoints(
+            self.points_cur[m], self.uv[m], self.depth[m], self.sigma_depth[m], self.angle_deg[m],
+            self.sampson_px[m], self.reprojection_px[m], self.confidence[m], self.status[m],
+        )
+
+    def status_counts(self) -> dict[str, int]:
+        """Number of points per status, e.g. ``{"valid": 812, "epipolar": 95, ...}`` (all statuses)."""
+        counts = np.bincount(self.status.astype(np.int64), minlength=len(PointStatus))
+        return {s.name.lower(): int(counts[s.value]) for s in PointStatus}
+
+
+def fundamental_from_pose(T_ref_cur, K_cur, K_ref) -> np.ndarray:
+    """(3, 3) fundamental matrix with ``x_ref^T F x_cur = 0`` for ideal pixels.
+
+    Args:
+        T_ref_cur: (4, 4) current-camera-to-reference-camera transform, metres.
+        K_cur, K_ref: (3, 3) intrinsics in pixels.
+
+    Returns ``F = K_ref^-T [t]x R K_cur^-1`` scaled to unit Frobenius norm (the baseline
+    length does not matter; the Sampson distance is scale-invariant). A zero baseline
+    gives the zero matrix.
+    """
+    T = check_transform("T_ref_cur", T_ref_cur)
+    K_cur = check_array("K_cur", K_cur, (3, 3), finite=True)
+    K_ref = check_array("K_ref", K_ref, (3, 3), finite=True)
+    return _fundamental(T[:3, :3], T[:3, 3], np.linalg.inv(K_cur), np.linalg.inv(K_ref))
+
+
+def _fundamental(R, t, K_cur_inv, K_ref_inv) -> np.ndarray:
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    F = K_ref_inv.T @ tx @ R @ K_cur_inv
+    norm = np.linalg.norm(F)
+    return F / norm if norm > 0 else F
+
+
+def sampson_distance(F, uv_cur, uv_ref) -> np.ndarray:
+    """(N,) Sampson distance in pixels of ideal-pixel matches ``uv_cur, uv_ref: (N, 2)``.
+
+    ``F: (3, 3)`` with ``x_ref^T F x_cur = 0``. It is the first-order approximation of the
+    total geometric distance ``sqrt(|dx_cur|^2 + |dx_ref|^2)`` needed to put the match on
+    the epipolar geometry. NaN where undefined: F = 0, or a match sitting on both epipoles
+    (to within floating-point rounding), where the epipolar lines degenerate.
+    """
+    F = check_array("F", F, (3, 3), finite=True)
+    uv_cur = check_array("uv_cur", uv_cur, (None, 2))
+    uv_ref = check_array("uv_ref", uv_ref, (len(uv_cur), 2))
+    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
+    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
+    Fxc = xc @ F.T  # epipolar lines in the reference image
+    Ftxr = xr @ F  # epipolar lines in the current image
+    err = np.sum(xr * Fxc, axis=1)
+    grad = np.sqrt(Fxc[:, 0] ** 2 + Fxc[:, 1] ** 2 + Ftxr[:, 0] ** 2 + Ftxr[:, 1] ** 2)
+    # rounding bound of err (generous: F itself carries rounding error); the distance is
+    # undefined where that bound alone would move it by more than _SAMPSON_RESOLUTION_PX
+    bound = _ROUNDING_FACTOR * np.finfo(np.float64).eps * np.sum(np.abs(xr) * (np.abs(xc) @ np.abs(F).T), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        defined = bound < _SAMPSON_RESOLUTION_PX * grad
+        return np.where(defined, np.abs(err) / grad, np.nan)
+
+
+def correct_matches(F, uv_cur, uv_ref) -> tuple[np.ndarray, np.ndarray]:
+    """Optimal correction of ideal-pixel matches onto the epipolar geometry.
+
+    Lindstrom's ``niter2`` (CVPR 2010): the smallest displacement (sum of squared
+    pixels over both views) of ``uv_cur, uv_ref: (N, 2)`` after which
+    ``x_ref^T F x_cur = 0``; ``F: (3, 3)``. Returns the corrected ``(uv_cur, uv_ref)``,
+    each (N, 2) pixels. A point with undefined geometry (at both epipoles) is left as is.
+    """
+    F = check_array("F", F, (3, 3), finite=True)
+    uv_cur = check_array("uv_cur", uv_cur, (None, 2))
+    uv_ref = check_array("uv_ref", uv_ref, (len(uv_cur), 2))
+    return _correct(F, uv_cur, uv_ref)
+
+
+def _correct(F, uv_cur, uv_ref):
+    # Lindstrom's notation: x = x_ref, x' = x_cur, E = F, S = [I2 0].
+    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
+    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
+    F2 = F[:2, :2]
+    n_r = (xc @ F.T)[:, :2]  # S F x'
+    n_c = (xr @ F)[:, :2]  # S F^T x
+    a = np.einsum("ni,ij,nj->n", n_r, F2, n_c)
+    b = 0.5 * (np.sum(n_r**2, 1) + np.sum(n_c**2, 1))
+    c = np.sum(xr * (xc @ F.T), axis=1)
+    d = np.sqrt(np.maximum(b * b - a * c, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.where(b + d > 0, c / (b + d), 0.0)
+        dr = lam[:, None] * n_r
+        dc = lam[:, None] * n_c
+        n_r = n_r - dc @ F2.T
+        n_c = n_c - dr @ F2
+        nn = np.sum(n_r**2, 1) + np.sum(n_c**2, 1)
+        lam = np.where(nn > 0, lam * 2.0 * d / nn, 0.0)
+    return uv_cur - lam[:, None] * n_c, uv_ref - lam[:, None] * n_r
+
+
+def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
+    f = np.column_stack([uv_cur, np.ones(len(uv_cur))]) @ K_cur_inv.T  # cur rays, z = 1
+    g = np.column_stack([uv_ref, np.ones(len(uv_ref))]) @ K_ref_inv.T @ R  # ref rays in cur frame (R^T f_ref)
+    C = -R.T @ t  # reference camera centre in the current frame
+    ff = np.sum(f * f, 1)
+    gg = np.sum(g * g, 1)
+    fg = np.sum(f * g, 1)
+    fC = f @ C
+    gC = g @ C
+    det = ff * gg - fg * fg  # = |f x g|^2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam_c = np.where(det > 0, (gg * fC - fg * gC) / det, np.nan)
+        lam_r = np.where(det > 0, (fg * fC - ff * gC) / det, np.nan)
+    points = 0.5 * (lam_c[:, None] * f + C + lam_r[:, None] * g)
+    sin = np.linalg.norm(np.cross(f, g), axis=1)
+    return points, fg, sin
+
+
+def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    F = _fundamental(R, t, K_cur_inv, K_ref_inv)
+    c_cur, c_ref = _correct(F, uv_cur, uv_ref)
+    points, _, _ = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
+    return points[:, 2]
+
+
+def _depth_jacobian_pixels(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
+    """(N, 4) d depth / d (u_cur, v_cur, u_ref, v_ref), central differences in one batch."""
+    n = len(uv_cur)
+    cur = np.tile(uv_cur, (8, 1))
+    ref = np.tile(uv_ref, (8, 1))
+    for k in range(4):  # 4 coordinates x (+h, -h): blocks of n rows
+        for s, sign in enumerate((1.0, -1.0)):
+            rows = slice((2 * k + s) * n, (2 * k + s + 1) * n)
+            target = cur if k < 2 else ref
+            target[rows, k % 2] += sign * _STEP_PX
+    z = _depth(cur, ref, K_cur_inv, K_ref_inv, R, t).reshape(4, 2, n)
+    return ((z[:, 0] - z[:, 1]) / (2.0 * _STEP_PX)).T
+
+
+def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
+    """(N, 6) d depth / d xi for ``T_ref_cur * Exp(xi)``, ``xi = (rotation rad, translation m)``.
+
+    First order, ``T * Exp(xi)`` has rotation ``R Exp(w)`` and translation ``t + R rho``
+    (the GTSAM ``Pose3`` retraction convention).
+    """
+    from scipy.spatial.transform import Rotation
+
+    J = np.empty((len(uv_cur), 6))
+    for k in range(6):
+        z = []
+        for sign in (1.0, -1.0):
+            xi = np.zeros(6)
+            xi[k] = sign * (_STEP_ROT if k < 3 else _STEP_TRANS)
+            Rp = R @ Rotation.from_rotvec(xi[:3]).as_matrix()
+            tp = t + R @ xi[3:]
+            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, Rp, tp))
+        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
+    return J
+
+
+def triangulate_pair(
+    uv_cur,
+    uv_ref,
+    camera_cur: Camera,
+    camera_ref: Camera,
+    T_ref_cur,
+    settings: TriangulationSettings,
+    confidence=None,
+    pose_covariance=None,
+) -> TriangulatedPoints:
+    """Triangulate matched keypoints of the current and reference images.
+
+    Args:
+        uv_cur: (N, 2) raw (distorted) pixels of the matches in the current image.
+        uv_ref: (N, 2) raw pixels of the same matches in the reference image.
+        camera_cur, camera_ref: intrinsics (and distortion) of the two images.
+        T_ref_cur: (4, 4) current-camera-to-reference-camera transform, metres
+            (:attr:`vio_depth.poses.RelativePose.T_kf_cur`).
+        settings: thresholds, see :class:`TriangulationSettings`.
+        confidence: (N,) matching confidence in [0, 1], or None (ones).
+        pose_covariance: (6, 6) covariance of the tangent-space error of ``T_ref_cur``
+            (rotation rad first, then translation m; right perturbation
+            ``T_ref_cur * Exp(xi)`` as in GTSAM), or None (pose taken as exact).
+
+    Returns:
+        :class:`TriangulatedPoints` with **every** candidate and its :class:`PointStatus`
+        (module docstring: order of the checks). Never raises for degenerate geometry
+        (N = 0, zero baseline, parallel rays): those become statuses.
+
+    Raises:
+        ShapeError: wrongly shaped or non-finite inputs.
+    """
+    uv_cur = check_array("uv_cur", uv_cur, (None, 2), finite=True).astype(np.float64)
+    n = len(uv_cur)
+    uv_ref = check_array("uv_ref", uv_ref, (n, 2), finite=True).astype(np.float64)
+    T = check_transform("T_ref_cur", T_ref_cur)
+    if not isinstance(camera_cur, Camera) or not isinstance(camera_ref, Camera):
+        raise InputError("triangulate_pair: camera_cur and camera_ref must be vio_depth.camera.Camera")
+    if not isinstance(settings, TriangulationSettings):
+        raise InputError("triangulate_pair: settings must be a TriangulationSettings")
+    conf = np.ones(n) if confidence is None else check_array("confidence", confidence, (n,), finite=True)
+    cov = None if pose_covariance is None else check_array("pose_covariance", pose_covariance, (6, 6), finite=True)
+    if n == 0:
+        return TriangulatedPoints.empty()
+
+    R, t = T[:3, :3], T[:3, 3]
+    K_cur_inv, K_ref_inv = np.linalg.inv(camera_cur.K), np.linalg.inv(camera_ref.K)
+    ic = camera_cur.undistort_points(uv_cur)
+    ir = camera_ref.undistort_points(uv_ref)
+
+    nan = np.full(n, np.nan)
+    status = np.full(n, PointStatus.VALID, np.uint8)
+
+    def mark(bad, code):
+        status[(status == PointStatus.VALID) & bad] = code
+
+    if np.linalg.norm(t) < ZERO_BASELINE_M:
+        # pure rotation: epipolar geometry undefined, nothing can be triangulated
+        _, cos, sin = _rays_and_points(ic, ir, K_cur_inv, K_ref_inv, R, t)
+        status[:] = PointStatus.LOW_PARALLAX
+        return TriangulatedPoints(np.full((n, 3), np.nan), uv_cur, nan, nan.copy(),
+                                  np.degrees(np.arctan2(sin, cos)), nan.copy(), nan.copy(), conf, status)
+
+    F = _fundamental(R, t, K_cur_inv, K_ref_inv)
+    sampson = sampson_distance(F, ic, ir)
+    c_cur, c_ref = _correct(F, ic, ir)
+    points, cos, sin = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
+    angle = np.degrees(np.arctan2(sin, cos))
+    depth = points[:, 2]
+    depth_ref = points @ R[2] + t[2]
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        proj_cur = points @ camera_cur.K.T
+        proj_cur = proj_cur[:, :2] / proj_cur[:, 2:]
+        proj_ref = (points @ R.T + t) @ camera_ref.K.T
+        proj_ref = proj_ref[:, :2] / proj_ref[:, 2:]
+        reproj = np.maximum(np.linalg.norm(proj_cur - ic, axis=1), np.linalg.norm(proj_ref - ir, axis=1))
+
+        mark(sampson > settings.max_sampson_px, PointStatus.EPIPOLAR)
+        mark(~(angle >= settings.min_angle_deg) | ~np.isfinite(sampson) | ~np.isfinite(depth)
+             | ~np.isfinite(depth_ref), PointStatus.LOW_PARALLAX)
+        mark(~((depth > 0) & (depth_ref > 0)), PointStatus.BEHIND_CAMERA)
+        mark(~(reproj <= settings.max_reprojection_px), PointStatus.REPROJECTION)
+        mark(~((depth >= settings.min_depth_m) & (depth <= settings.max_depth_m)), PointStatus.DEPTH_RANGE)
+
+    var = np.zeros(n)
+    if settings.pixel_sigma_px > 0:
+        J_px = _depth_jacobian_pixels(ic, ir, K_cur_inv, K_ref_inv, R, t)
+        var = var + settings.pixel_sigma_px**2 * np.sum(J_px**2, axis=1)
+    if cov is not None:
+        J_pose = _depth_jacobian_pose(ic, ir, K_cur_inv, K_ref_inv, R, t)
+        var = var + np.einsum("ni,ij,nj->n", J_pose, cov, J_pose)
+    sigma = np.sqrt(np.maximum(var, 0.0))
+    mark(~np.isfinite(sigma), PointStatus.LOW_PARALLAX)
+
+    return TriangulatedPoints(points, uv_cur, depth, sigma, angle, sampson, reproj, conf, status)
