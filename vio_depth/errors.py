@@ -30,6 +30,10 @@ class ShapeError(InputError, ValueError):
     """An array argument has the wrong shape, dtype or non-finite values."""
 
 
+class SettingsError(VioDepthError, ValueError):
+    """A settings value is out of range (e.g. a negative threshold)."""
+
+
 class UnknownNameError(VioDepthError, ValueError):
     """An unknown preset/registry name. The message lists the valid names."""
 
