@@ -1,0 +1,82 @@
+"""16-bit PNG depth maps in the KITTI convention: ``uint16 = round(metres * 256)``, 0 = invalid.
+
+The resolution is 1/256 m (3.9 mm) and the largest storable depth is 65535 / 256 =
+255.996 m. Both functions take an optional ``scale`` (units per metre) so that other
+integer conventions (e.g. ``scale=1000`` for millimetre PNGs) can share the code, but the
+native sequence format always uses 256.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..checks import check_array
+from ..errors import InputError, SequenceFormatError
+
+#: KITTI / native-format depth scale: stored uint16 value per metre.
+DEPTH_PNG_SCALE = 256.0
+
+
+def read_depth_png(path, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
+    """Read a 16-bit depth PNG.
+
+    Args:
+        path: file path.
+        scale: stored units per metre (256 for the KITTI / native convention).
+
+    Returns:
+        depth: (H, W) float32 metres; pixels stored as 0 are returned as 0.0 (invalid).
+
+    Raises:
+        SequenceFormatError: the file is missing, unreadable, not single-channel or not
+            16-bit unsigned (the message names the file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SequenceFormatError(path, "depth PNG not found")
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise SequenceFormatError(path, "cannot decode depth PNG")
+    if raw.ndim != 2:
+        raise SequenceFormatError(path, f"depth PNG must be single-channel, got shape {raw.shape}")
+    if raw.dtype != np.uint16:
+        raise SequenceFormatError(path, f"depth PNG must be 16-bit unsigned, got {raw.dtype}")
+    return (raw.astype(np.float32) / np.float32(scale)).astype(np.float32)
+
+
+def encode_depth_uint16(depth, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
+    """Quantise ``depth: (H, W)`` metres to the stored uint16 values.
+
+    NaN, +-inf and values <= 0 are invalid and become 0. Valid values are rounded to the
+    nearest 1/scale m and clipped to [1, 65535] (so a tiny positive depth stays valid and
+    depths beyond 65535/scale m, 255.996 m at scale 256, saturate).
+    """
+    depth = check_array("depth", depth, (None, None))
+    if not scale > 0:
+        raise InputError(f"depth scale must be positive, got {scale}")
+    d = depth.astype(np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    q = np.zeros(d.shape, dtype=np.uint16)
+    q[valid] = np.clip(np.rint(d[valid] * scale), 1, 65535).astype(np.uint16)
+    return q
+
+
+def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
+    """Write ``depth: (H, W)`` metres as a 16-bit PNG (see :func:`encode_depth_uint16`).
+
+    NaN or <= 0 means invalid and is written as 0; valid depths are clipped to the uint16
+    range, i.e. [1/scale, 65535/scale] metres. Parent folders must exist.
+
+    Raises:
+        ShapeError: ``depth`` is not a 2-D float (or integer) array.
+        InputError: the file cannot be written.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise InputError(f"{path}: depth maps are written as .png files")
+    q = encode_depth_uint16(depth, scale)
+    if not cv2.imwrite(str(path), q, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        raise InputError(f"{path}: cannot write depth PNG")
