@@ -17,7 +17,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import UnknownNameError
+from .errors import SettingsError, UnknownNameError
 from .geometry import rotation_angle_deg
 from .types import Frame
 
@@ -48,11 +48,11 @@ class PairingSettings:
 
     def __post_init__(self):
         if self.min_rotation_deg <= 0 or self.min_translation_m <= 0:
-            raise ValueError("pairing thresholds must be positive")
+            raise SettingsError("pairing thresholds (--min-rotation, --min-translation) must be positive")
         if not 0 < self.keyframe_fraction <= 1:
-            raise ValueError("keyframe_fraction must be in (0, 1]")
+            raise SettingsError("keyframe_fraction must be in (0, 1]")
         if self.buffer_size < 1 or self.max_pair_attempts < 1:
-            raise ValueError("buffer_size and max_pair_attempts must be >= 1")
+            raise SettingsError("buffer_size and max_pair_attempts must be >= 1")
 
 
 #: Named pairing presets. "kitti"/"ddad" are the paper's thresholds; "indoor" scales the

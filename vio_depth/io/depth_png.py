@@ -68,7 +68,8 @@ def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
     """Write ``depth: (H, W)`` metres as a 16-bit PNG (see :func:`encode_depth_uint16`).
 
     NaN or <= 0 means invalid and is written as 0; valid depths are clipped to the uint16
-    range, i.e. [1/scale, 65535/scale] metres. Parent folders must exist.
+    range, i.e. [1/scale, 65535/scale] metres. Parent folders must exist. The file is
+    written under a temporary name and renamed into place, so it is never half-written.
 
     Raises:
         ShapeError: ``depth`` is not a 2-D float (or integer) array.
@@ -78,5 +79,26 @@ def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
     if path.suffix.lower() != ".png":
         raise InputError(f"{path}: depth maps are written as .png files")
     q = encode_depth_uint16(depth, scale)
-    if not cv2.imwrite(str(path), q, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
-        raise InputError(f"{path}: cannot write depth PNG")
+    ok, buf = cv2.imencode(".png", q, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    if not ok:  # pragma: no cover - cv2 failure
+        raise InputError(f"{path}: cannot encode depth PNG")
+    try:
+        write_bytes_atomic(path, buf.tobytes())
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write depth PNG ({exc.strerror})") from None
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
+    import os
+    import tempfile
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,122 @@
+"""CLI: end-to-end on a short slice of the bundled street sample, and bad input handling."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_depth.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+STREET = ROOT / "sample_sequences" / "street"
+
+
+def _run(argv, capsys):
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _assert_one_line_error(rc, err, *fragments):
+    assert rc == 1
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("vio-depth: error:")
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in lines[0]
+
+
+def test_missing_sequence_folder_is_one_clear_line(tmp_path, capsys):
+    rc, _, err = _run(["run", tmp_path / "nope", "--out", tmp_path / "out"], capsys)
+    _assert_one_line_error(rc, err, "nope")
+    assert not (tmp_path / "out" / "frames.jsonl").exists()
+
+
+def test_folder_that_is_no_sequence_is_rejected(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    rc, _, err = _run(["run", tmp_path / "empty", "--out", tmp_path / "out"], capsys)
+    _assert_one_line_error(rc, err, "not a recognised sequence")
+
+
+@pytest.mark.parametrize("option, value, listed", [
+    ("--matcher", "surf", "sift"),
+    ("--pairing", "mars", "kitti"),
+    ("--poses", "gps", "gt"),
+    ("--points", "radar:3", "lidar"),
+])
+def test_unknown_names_list_valid_ones(tmp_path, capsys, option, value, listed):
+    rc, _, err = _run(["run", STREET, "--out", tmp_path / "out", option, value, "--max-frames", 2], capsys)
+    _assert_one_line_error(rc, err, value, listed)
+
+
+needs_street = pytest.mark.skipif(not (STREET / "sequence.json").exists(), reason="bundled street sample missing")
+
+
+@needs_street
+def test_disparity_dir_with_wrong_shape_fails_cleanly_without_outputs(tmp_path, capsys):
+    from vio_depth.io import open_sequence
+
+    seq = open_sequence(STREET)
+    ddir = tmp_path / "disp"
+    ddir.mkdir()
+    np.save(ddir / f"{seq[0].stem}.npy", np.ones((10, 10), np.float32))
+    out = tmp_path / "out"
+    rc, _, err = _run(["run", STREET, "--out", out, "--disparity", ddir, "--max-frames", 3], capsys)
+    _assert_one_line_error(rc, err, f"{seq[0].stem}.npy", "disparity must be")
+    leftovers = [p for p in out.rglob("*") if p.is_file()] if out.exists() else []
+    assert leftovers == []
+
+
+@needs_street
+@pytest.mark.slow
+def test_end_to_end_short_slice_and_affine_invariance(tmp_path, capsys):
+    """Metric depth on 14 frames; an affinely transformed disparity gives the same depth."""
+    from vio_depth.io import open_sequence
+    from vio_depth.io.depth_png import read_depth_png
+
+    n = 14
+    out = tmp_path / "own"
+    rc, table, err = _run(["run", STREET, "--out", out, "--max-frames", n, "--seed", 1], capsys)
+    assert rc == 0, err
+    assert "sfm" in table and "oracle" in table and "SIMULATED" in table
+    rows = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+    assert [r["frame"] for r in rows] == list(range(n))
+    for key in ("partner_keyframe", "matches", "triangulated_points", "inliers", "alpha", "beta", "r2",
+                "status", "seconds"):
+        assert key in rows[0]
+    with_depth = [r for r in rows if r["alpha"] is not None]
+    assert len(with_depth) >= n - 2  # only the first frame(s) may lack a pair
+    metrics = json.loads((out / "metrics.json").read_text())
+    sfm, oracle = metrics["metrics"]["sfm"], metrics["metrics"]["oracle"]
+    assert sfm["n_frames"] == len(with_depth)
+    assert sfm["delta1"] >= oracle["delta1"] - 0.05
+    assert sfm["abs_rel"] <= 1.5 * oracle["abs_rel"]
+    pngs = sorted((out / "depth").glob("*.png"))
+    assert len(pngs) == len(with_depth)
+    assert not list(out.rglob("*.partial"))
+
+    # The same run on disparity' = 3 d + 0.5 (still affine-invariant) gives the same metric depth.
+    seq = open_sequence(STREET)
+    ddir = tmp_path / "affine"
+    ddir.mkdir()
+    for i in range(n):
+        np.save(ddir / f"{seq[i].stem}.npy", (3.0 * seq[i].disparity() + 0.5).astype(np.float32))
+    out2 = tmp_path / "affine_out"
+    rc, _, err = _run(["run", STREET, "--out", out2, "--max-frames", n, "--seed", 1, "--disparity", ddir], capsys)
+    assert rc == 0, err
+    a = read_depth_png(pngs[-1])
+    b = read_depth_png(out2 / "depth" / pngs[-1].name)
+    valid = (a > 0) & (b > 0)
+    assert valid.mean() > 0.5
+    assert np.median(np.abs(a[valid] - b[valid]) / a[valid]) < 0.01
+
+
+def test_console_script_reports_errors_without_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "vio_depth.cli", "run", str(tmp_path / "missing"),
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("vio-depth: error:") and "Traceback" not in proc.stderr

@@ -1,0 +1,225 @@
+"""The streaming pipeline: frame -> features -> pair -> triangulated points -> fit -> metric depth.
+
+One :class:`Pipeline` processes frames in order (``process(frame)``), keeping a bounded
+keyframe buffer whose features were extracted once. Every per-frame failure is a
+:class:`~vio_depth.types.FrameStatus` with a reason; nothing in here raises for a bad
+frame (only for bad *input*, e.g. an unreadable image).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .disparity import DisparitySource
+from .keyframes import PAIRING_PRESETS, Keyframe, KeyframeBuffer, Motion, PairingSettings
+from .poses import PoseSource
+from .types import Frame, FrameResult, FrameStatus
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything that shapes a run, chosen by preset names where there are presets.
+
+    Attributes:
+        matcher: matcher preset name (see ``matchers.available_matchers()``).
+        device: "cpu" / "cuda" for learned matchers; None = cuda when available.
+        pairing: keyframe/pair selection thresholds.
+        triangulation: per-point checks (``triangulation.TriangulationSettings``).
+        rescaler: robust fit, fallbacks and temporal filter (``vio_depth.rescale.RescalerSettings``).
+        min_matches: fewer matches than this in a pair -> status too_few_matches.
+        points: "sfm" (triangulated points) or a reference source "lidar:N" / "random:N"
+            sampled from ground-truth depth, for comparison on the same frames.
+        points_seed: seed of the "random:N" reference source.
+    """
+
+    matcher: str = "sift"
+    device: str | None = None
+    pairing: PairingSettings = PAIRING_PRESETS["kitti"]
+    triangulation: object = None
+    rescaler: object = None
+    min_matches: int = 20
+    points: str = "sfm"
+    points_seed: int = 0
+
+
+@dataclass
+class _PairOutcome:
+    status: FrameStatus
+    reason: str
+    partner: int | None = None
+    matches: int = 0
+    points: object = None  # TriangulatedPoints
+    motion: Motion | None = None
+    weak: bool = False
+    status_counts: dict = field(default_factory=dict)
+
+
+class Pipeline:
+    """Streaming metric-depth pipeline over frames of one camera.
+
+    Args:
+        settings: see :class:`PipelineSettings`.
+        pose_source: gives relative poses between frames (``vio_depth.poses``).
+        disparity_source: gives each frame's affine-invariant disparity.
+    """
+
+    def __init__(self, settings: PipelineSettings, pose_source: PoseSource, disparity_source: DisparitySource):
+        from triangulation import TriangulationSettings
+
+        from .reference_points import parse_points_spec
+        from .rescale import Rescaler, RescalerSettings
+
+        self.settings = settings
+        self.pose_source = pose_source
+        self.disparity_source = disparity_source
+        self.points_spec = parse_points_spec(settings.points)
+        self.triangulation_settings = settings.triangulation or TriangulationSettings()
+        self.rescaler = Rescaler(settings.rescaler or RescalerSettings())
+        self.buffer = KeyframeBuffer(settings.pairing)
+        self.matcher = None
+        if self.points_spec.kind == "sfm":
+            from matchers import create_matcher
+
+            self.matcher = create_matcher(settings.matcher, device=settings.device)
+
+    # ------------------------------------------------------------------ per frame
+    def process(self, frame: Frame) -> FrameResult:
+        """Process the next frame of the stream and return its result (with ``depth``)."""
+        t0 = time.perf_counter()
+        result = self._process(frame)
+        result.seconds = time.perf_counter() - t0
+        return result
+
+    def _process(self, frame: Frame) -> FrameResult:
+        disparity = self.disparity_source(frame)
+        features = None
+        if self.matcher is not None:
+            features = self.matcher.extract(frame.image())  # once per frame, kept if keyframe
+
+        empty = np.zeros(0)
+        uv, depth, sigma, weights = np.zeros((0, 2)), empty, None, None
+        if self.points_spec.kind == "sfm":
+            pair = self._pair_and_triangulate(frame, features)
+            self._maybe_add_keyframe(frame, features)
+            if pair.points is not None:
+                pts = pair.points.subset(pair.points.valid)
+                uv, depth, sigma, weights = pts.uv, pts.depth, pts.sigma_depth, pts.confidence
+        else:
+            gt = frame.gt_depth()
+            if gt is None:
+                pair = _PairOutcome(FrameStatus.TOO_FEW_POINTS, f"--points {self.settings.points} needs ground-truth depth")
+            else:
+                pair = _PairOutcome(FrameStatus.OK, "")
+                uv, depth = self.points_spec.sample(gt, seed=self.settings.points_seed + frame.index)
+
+        extra = {"point_status": pair.status_counts} if pair.status_counts else {}
+        if pair.weak:
+            extra["weak_pair"] = True
+        if pair.motion is not None:
+            extra["pair_rotation_deg"] = round(pair.motion.rotation_deg, 3)
+            extra["pair_translation_m"] = round(pair.motion.translation_m, 4)
+        res = FrameResult(frame.index, frame.stem, pair.status, pair.reason, pair.partner, pair.matches,
+                          triangulated=int(len(depth)), extra=extra)
+        if disparity is None:
+            res.status, res.reason = FrameStatus.NO_DISPARITY, "no disparity map for this frame"
+            return res
+
+        from .rescale import sample_bilinear
+
+        d, inside = sample_bilinear(disparity, uv)
+        outcome = self.rescaler.update(d[inside], depth[inside],
+                                       None if sigma is None else sigma[inside],
+                                       None if weights is None else weights[inside],
+                                       disparity_map=disparity)
+        res.extra["points_sampled"] = int(inside.sum())
+        res.inliers = int(outcome.n_inliers)
+        res.disparity = disparity
+        res.points_uv, res.points_depth = uv[inside], depth[inside]
+        rescale_status = outcome.frame_status
+        if pair.status == FrameStatus.OK or rescale_status.has_depth:
+            # The pair worked (the fit decides), or a fallback gave depth despite a failed pair.
+            res.status = rescale_status
+            res.reason = "; ".join(r for r in (pair.reason, outcome.reason) if r)
+        if outcome.fit is not None:
+            fit = outcome.fit
+            res.fit = fit
+            res.alpha, res.beta = float(fit.alpha), float(fit.beta)
+            res.r2 = None if fit.r2 is None or not np.isfinite(fit.r2) else float(fit.r2)
+            res.depth = outcome.metric_depth(disparity)
+        return res
+
+    # ------------------------------------------------------------------ pairing
+    def _pair_and_triangulate(self, frame: Frame, features) -> _PairOutcome:
+        from triangulation import triangulate_pair
+
+        if len(self.buffer) == 0:
+            return _PairOutcome(FrameStatus.NO_PAIR, "first frame: no keyframe to pair with yet")
+        qualifying, weak = [], []
+        reasons = []
+        for kf in self.buffer.newest_first():
+            rel = self.pose_source.relative(kf.frame, frame)
+            if not rel.ok:
+                reasons.append(rel.reason)
+                continue
+            motion = Motion.from_transform(rel.T_kf_cur)
+            (qualifying if motion.exceeds(self.settings.pairing) else weak).append((kf, rel, motion))
+        if not qualifying and not weak:
+            return _PairOutcome(FrameStatus.NO_POSE, "; ".join(sorted(set(reasons))) or "no relative pose")
+        candidates = qualifying[: self.settings.pairing.max_pair_attempts]
+        is_weak = False
+        if not candidates:
+            if not self.settings.pairing.allow_weak_pairs:
+                best = max(weak, key=lambda c: c[2].translation_m)[2]
+                return _PairOutcome(FrameStatus.NO_PAIR, (
+                    f"no keyframe beyond {self.settings.pairing.min_rotation_deg} deg / "
+                    f"{self.settings.pairing.min_translation_m} m (best: {best.rotation_deg:.1f} deg, "
+                    f"{best.translation_m:.2f} m)"))
+            candidates = [max(weak, key=lambda c: c[2].translation_m)]
+            is_weak = True
+
+        best_outcome = None
+        for kf, rel, motion in candidates:
+            m = self.matcher.match(features, kf.features)
+            if len(m) < self.settings.min_matches:
+                outcome = _PairOutcome(FrameStatus.TOO_FEW_MATCHES,
+                                       f"{len(m)} matches with keyframe {kf.frame.index} (< {self.settings.min_matches})",
+                                       kf.frame.index, len(m), motion=motion, weak=is_weak)
+            else:
+                pts = triangulate_pair(
+                    features.keypoints[m.idx_a], kf.features.keypoints[m.idx_b],
+                    frame.camera, kf.frame.camera, rel.T_kf_cur, self.triangulation_settings,
+                    confidence=m.confidence, pose_covariance=rel.covariance,
+                )
+                n_valid = int(pts.valid.sum())
+                outcome = _PairOutcome(FrameStatus.OK, "", kf.frame.index, len(m), pts, motion, is_weak,
+                                       pts.status_counts())
+                if n_valid == 0:
+                    outcome.status, outcome.reason, outcome.points = (
+                        FrameStatus.TOO_FEW_POINTS,
+                        f"no point passed the checks with keyframe {kf.frame.index} ({_fmt_counts(pts.status_counts())})",
+                        None)
+            if best_outcome is None or _n_valid(outcome) > _n_valid(best_outcome):
+                best_outcome = outcome
+            if _n_valid(outcome) >= self.rescaler.settings.ransac.min_points:
+                break
+        return best_outcome
+
+    def _maybe_add_keyframe(self, frame: Frame, features) -> None:
+        newest = self.buffer.newest
+        if newest is None:
+            self.buffer.push(Keyframe(frame, features))
+            return
+        rel = self.pose_source.relative(newest.frame, frame)
+        if rel.ok and Motion.from_transform(rel.T_kf_cur).exceeds(self.settings.pairing, self.settings.pairing.keyframe_fraction):
+            self.buffer.push(Keyframe(frame, features))
+
+
+def _n_valid(outcome: _PairOutcome) -> int:
+    return 0 if outcome.points is None else int(outcome.points.valid.sum())
+
+
+def _fmt_counts(counts: dict) -> str:
+    return ", ".join(f"{k}: {v}" for k, v in counts.items() if v)
