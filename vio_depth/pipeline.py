@@ -135,6 +135,8 @@ class Pipeline:
                                        None if weights is None else weights[inside],
                                        disparity_map=disparity)
         res.extra["points_sampled"] = int(inside.sum())
+        res.extra["rescale"] = outcome.status.value
+        res.extra["fit_diagnostics"] = outcome.raw.to_json()
         res.inliers = int(outcome.n_inliers)
         res.disparity = disparity
         res.points_uv, res.points_depth = uv[inside], depth[inside]

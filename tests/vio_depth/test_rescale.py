@@ -155,6 +155,21 @@ def test_degenerate_spread_all_points_at_one_depth():
     assert fit_affine(np.full(50, 0.5), np.linspace(2, 20, 50)).status == FitStatus.DEGENERATE_SPREAD
 
 
+def test_spread_comparable_to_the_network_error_is_refused():
+    """Regression (room sample, frame 3): 96 accurate points whose metric disparities spread
+    by only ~6 % (std/mean) -- about the network's own relative error -- were accepted and
+    the correlated disparity error tilted the fit (AbsRel 0.21 vs oracle 0.012)."""
+    rng = np.random.default_rng(11)
+    n = 96
+    m_true = 0.4 * (1.0 + 0.06 * rng.standard_normal(n))  # 1/m, relative spread ~0.06
+    d = (m_true - BETA) / ALPHA
+    d = d + 0.3 * (d - d.mean())  # a smooth, correlated distortion of the disparity
+    fit = fit_affine(d, 1.0 / m_true)
+    assert fit.status == FitStatus.DEGENERATE_SPREAD, fit.reason
+    wide = fit_affine(*make_points(np.random.default_rng(12), n=n)[:2])
+    assert wide.ok, wide.reason  # the same number of points with a wide spread is fine
+
+
 def test_degenerate_spread_of_the_inliers_behind_wide_outliers():
     rng = np.random.default_rng(6)
     n_in, n_out = 300, 40
