@@ -33,8 +33,9 @@ class PairingSettings:
             newest keyframe exceeds this fraction of either threshold (the first frame
             always is). Smaller values keep more, closer keyframes.
         buffer_size: keyframes kept (oldest dropped first); bounds memory.
-        max_pair_attempts: qualifying keyframes tried (newest first) until one gives
-            enough triangulated points.
+        pairs_per_frame: qualifying keyframes (newest first) a frame is matched with; their
+            valid points are merged (features are cached, so an extra pair costs one
+            matching and one triangulation, no extraction).
         allow_weak_pairs: when no keyframe qualifies, pair with the one giving the largest
             translation instead of giving up (points still face the parallax check).
     """
@@ -43,7 +44,7 @@ class PairingSettings:
     min_translation_m: float = 1.5
     keyframe_fraction: float = 0.5
     buffer_size: int = 8
-    max_pair_attempts: int = 2
+    pairs_per_frame: int = 2
     allow_weak_pairs: bool = True
 
     def __post_init__(self):
@@ -51,8 +52,8 @@ class PairingSettings:
             raise SettingsError("pairing thresholds (--min-rotation, --min-translation) must be positive")
         if not 0 < self.keyframe_fraction <= 1:
             raise SettingsError("keyframe_fraction must be in (0, 1]")
-        if self.buffer_size < 1 or self.max_pair_attempts < 1:
-            raise SettingsError("buffer_size and max_pair_attempts must be >= 1")
+        if self.buffer_size < 1 or self.pairs_per_frame < 1:
+            raise SettingsError("buffer_size and pairs_per_frame must be >= 1")
 
 
 #: Named pairing presets. "kitti"/"ddad" are the paper's thresholds; "indoor" scales the

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .checks import check_array
 from .disparity import DisparitySource
 from .keyframes import PAIRING_PRESETS, Keyframe, KeyframeBuffer, Motion, PairingSettings
 from .poses import PoseSource
@@ -51,10 +52,15 @@ class _PairOutcome:
     reason: str
     partner: int | None = None
     matches: int = 0
-    points: object = None  # TriangulatedPoints
     motion: Motion | None = None
     weak: bool = False
     status_counts: dict = field(default_factory=dict)
+    partners: list = field(default_factory=list)
+    # merged valid points: (N, 2) px in the current image, (N,) metres, (N,) metres, (N,)
+    uv: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+    confidence: np.ndarray | None = None
 
 
 class Pipeline:
@@ -104,9 +110,8 @@ class Pipeline:
         if self.points_spec.kind == "sfm":
             pair = self._pair_and_triangulate(frame, features)
             self._maybe_add_keyframe(frame, features)
-            if pair.points is not None:
-                pts = pair.points.subset(pair.points.valid)
-                uv, depth, sigma, weights = pts.uv, pts.depth, pts.sigma_depth, pts.confidence
+            if pair.uv is not None:
+                uv, depth, sigma, weights = pair.uv, pair.depth, pair.sigma, pair.confidence
         else:
             gt = frame.gt_depth()
             if gt is None:
@@ -116,6 +121,8 @@ class Pipeline:
                 uv, depth = self.points_spec.sample(gt, seed=self.settings.points_seed + frame.index)
 
         extra = {"point_status": pair.status_counts} if pair.status_counts else {}
+        if len(pair.partners) > 1:
+            extra["partners"] = pair.partners
         if pair.weak:
             extra["weak_pair"] = True
         if pair.motion is not None:
@@ -155,59 +162,76 @@ class Pipeline:
 
     # ------------------------------------------------------------------ pairing
     def _pair_and_triangulate(self, frame: Frame, features) -> _PairOutcome:
+        """Pair ``frame`` with up to ``pairing.pairs_per_frame`` keyframes and merge their points.
+
+        Qualifying keyframes (beyond the motion thresholds) are used newest first; when none
+        qualifies and weak pairs are allowed, the keyframe with the largest translation is
+        used. A current keypoint triangulated in several pairs keeps its most certain depth
+        (smallest ``sigma_depth``).
+        """
         from triangulation import triangulate_pair
 
+        pairing = self.settings.pairing
         if len(self.buffer) == 0:
             return _PairOutcome(FrameStatus.NO_PAIR, "first frame: no keyframe to pair with yet")
-        qualifying, weak = [], []
-        reasons = []
+        qualifying, weak, reasons = [], [], []
         for kf in self.buffer.newest_first():
             rel = self.pose_source.relative(kf.frame, frame)
             if not rel.ok:
                 reasons.append(rel.reason)
                 continue
             motion = Motion.from_transform(rel.T_kf_cur)
-            (qualifying if motion.exceeds(self.settings.pairing) else weak).append((kf, rel, motion))
+            (qualifying if motion.exceeds(pairing) else weak).append((kf, rel, motion))
         if not qualifying and not weak:
             return _PairOutcome(FrameStatus.NO_POSE, "; ".join(sorted(set(reasons))) or "no relative pose")
-        candidates = qualifying[: self.settings.pairing.max_pair_attempts]
-        is_weak = False
+        candidates, is_weak = qualifying[: pairing.pairs_per_frame], False
         if not candidates:
-            if not self.settings.pairing.allow_weak_pairs:
-                best = max(weak, key=lambda c: c[2].translation_m)[2]
+            best = max(weak, key=lambda c: c[2].translation_m)
+            if not pairing.allow_weak_pairs:
                 return _PairOutcome(FrameStatus.NO_PAIR, (
-                    f"no keyframe beyond {self.settings.pairing.min_rotation_deg} deg / "
-                    f"{self.settings.pairing.min_translation_m} m (best: {best.rotation_deg:.1f} deg, "
-                    f"{best.translation_m:.2f} m)"))
-            candidates = [max(weak, key=lambda c: c[2].translation_m)]
-            is_weak = True
+                    f"no keyframe beyond {pairing.min_rotation_deg} deg / {pairing.min_translation_m} m "
+                    f"(best: {best[2].rotation_deg:.1f} deg, {best[2].translation_m:.2f} m)"))
+            candidates, is_weak = [best], True
 
-        best_outcome = None
+        counts: dict[str, int] = {}
+        merged = []  # (current keypoint indices, valid TriangulatedPoints) per pair
+        n_matches, problems = 0, []
         for kf, rel, motion in candidates:
             m = self.matcher.match(features, kf.features)
+            n_matches += len(m)
             if len(m) < self.settings.min_matches:
-                outcome = _PairOutcome(FrameStatus.TOO_FEW_MATCHES,
-                                       f"{len(m)} matches with keyframe {kf.frame.index} (< {self.settings.min_matches})",
-                                       kf.frame.index, len(m), motion=motion, weak=is_weak)
+                problems.append(f"{len(m)} matches with keyframe {kf.frame.index} (< {self.settings.min_matches})")
+                continue
+            pts = triangulate_pair(
+                features.keypoints[m.idx_a], kf.features.keypoints[m.idx_b],
+                frame.camera, kf.frame.camera, rel.T_kf_cur, self.triangulation_settings,
+                confidence=m.confidence, pose_covariance=rel.covariance,
+            )
+            for name, k in pts.status_counts().items():
+                counts[name] = counts.get(name, 0) + k
+            valid = pts.valid
+            if valid.any():
+                merged.append((m.idx_a[valid], pts.subset(valid)))
             else:
-                pts = triangulate_pair(
-                    features.keypoints[m.idx_a], kf.features.keypoints[m.idx_b],
-                    frame.camera, kf.frame.camera, rel.T_kf_cur, self.triangulation_settings,
-                    confidence=m.confidence, pose_covariance=rel.covariance,
-                )
-                n_valid = int(pts.valid.sum())
-                outcome = _PairOutcome(FrameStatus.OK, "", kf.frame.index, len(m), pts, motion, is_weak,
-                                       pts.status_counts())
-                if n_valid == 0:
-                    outcome.status, outcome.reason, outcome.points = (
-                        FrameStatus.TOO_FEW_POINTS,
-                        f"no point passed the checks with keyframe {kf.frame.index} ({_fmt_counts(pts.status_counts())})",
-                        None)
-            if best_outcome is None or _n_valid(outcome) > _n_valid(best_outcome):
-                best_outcome = outcome
-            if _n_valid(outcome) >= self.rescaler.settings.ransac.min_points:
-                break
-        return best_outcome
+                problems.append(f"no point passed the checks with keyframe {kf.frame.index}")
+
+        first_kf, _, first_motion = candidates[0]
+        outcome = _PairOutcome(FrameStatus.OK, "", first_kf.frame.index, n_matches, motion=first_motion,
+                               weak=is_weak, status_counts=counts,
+                               partners=[kf.frame.index for kf, _, _ in candidates])
+        if not merged:
+            too_few = all("matches with" in p for p in problems)
+            outcome.status = FrameStatus.TOO_FEW_MATCHES if too_few else FrameStatus.TOO_FEW_POINTS
+            outcome.reason = "; ".join(problems) + (f" ({_fmt_counts(counts)})" if counts else "")
+            return outcome
+        idx = np.concatenate([i for i, _ in merged])
+        uv = np.concatenate([p.uv for _, p in merged])
+        depth = np.concatenate([p.depth for _, p in merged])
+        sigma = np.concatenate([p.sigma_depth for _, p in merged])
+        conf = np.concatenate([p.confidence for _, p in merged])
+        keep = most_certain_per_keypoint(idx, sigma)
+        outcome.uv, outcome.depth, outcome.sigma, outcome.confidence = uv[keep], depth[keep], sigma[keep], conf[keep]
+        return outcome
 
     def _maybe_add_keyframe(self, frame: Frame, features) -> None:
         newest = self.buffer.newest
@@ -219,8 +243,22 @@ class Pipeline:
             self.buffer.push(Keyframe(frame, features))
 
 
-def _n_valid(outcome: _PairOutcome) -> int:
-    return 0 if outcome.points is None else int(outcome.points.valid.sum())
+def most_certain_per_keypoint(keypoint_idx, sigma_depth) -> np.ndarray:
+    """Indices that keep, for each distinct keypoint, its entry with the smallest sigma.
+
+    Args:
+        keypoint_idx: (N,) int, index of the current-frame keypoint of each point.
+        sigma_depth: (N,) metres, the point's depth uncertainty.
+
+    Returns:
+        (K,) int indices into the inputs, one per distinct keypoint, sorted by keypoint.
+    """
+    idx = check_array("keypoint_idx", keypoint_idx, (None,), dtype="int")
+    sigma = check_array("sigma_depth", sigma_depth, (len(idx),))
+    order = np.lexsort((sigma, idx))
+    first = np.ones(len(order), bool)
+    first[1:] = idx[order][1:] != idx[order][:-1]
+    return order[first]
 
 
 def _fmt_counts(counts: dict) -> str:

@@ -175,7 +175,7 @@ def format_table(summary: RunSummary) -> str:
         for name in ("sfm", "oracle"):
             m = summary.metrics[name]
             lines.append(
-                f"{name:8s} {m['delta1']:8.3f} {m['abs_rel']:8.3f} {m['rmse']:8.3f} "
+                f"{name:8s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
                 f"{m['n_frames']:17d} {summary.frames_in_sequence:19d}"
             )
     lines.append(

@@ -170,4 +170,6 @@ class FrameResult:
 def _is_json_scalar(value) -> bool:
     if isinstance(value, dict):
         return all(isinstance(k, str) and _is_json_scalar(v) for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        return all(_is_json_scalar(v) for v in value)
     return value is None or isinstance(value, (bool, int, float, str))

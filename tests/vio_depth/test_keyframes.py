@@ -59,3 +59,15 @@ def test_invalid_settings_rejected():
         PairingSettings(min_translation_m=0.0)
     with pytest.raises(ValueError):
         PairingSettings(keyframe_fraction=1.5)
+
+
+def test_most_certain_depth_per_keypoint_is_kept():
+    from vio_depth.pipeline import most_certain_per_keypoint
+
+    idx = np.array([7, 3, 7, 5, 3, 7])
+    sigma = np.array([0.5, 0.2, 0.1, 0.3, 0.4, 0.9])
+    keep = most_certain_per_keypoint(idx, sigma)
+    assert sorted(idx[keep].tolist()) == [3, 5, 7]
+    chosen = dict(zip(idx[keep].tolist(), sigma[keep].tolist()))
+    assert chosen == {3: 0.2, 5: 0.3, 7: 0.1}
+    assert len(most_certain_per_keypoint(np.zeros(0, int), np.zeros(0))) == 0

@@ -1,0 +1,68 @@
+"""Pipeline on a short slice of the bundled street sample (SIMULATED disparity)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_depth.disparity import SequenceDisparity
+from vio_depth.io import open_sequence
+from vio_depth.keyframes import pairing_preset
+from vio_depth.pipeline import Pipeline, PipelineSettings
+from vio_depth.poses import GroundTruthPoses
+from vio_depth.types import FrameStatus
+
+STREET = Path(__file__).resolve().parents[2] / "sample_sequences" / "street"
+pytestmark = pytest.mark.skipif(not (STREET / "sequence.json").exists(), reason="street sample missing")
+
+
+class CountingMatcher:
+    """Wraps a matcher and counts calls, to check features are extracted once per frame."""
+
+    def __init__(self, inner):
+        self.inner, self.name = inner, inner.name
+        self.extracted, self.matched = [], 0
+
+    def extract(self, image):
+        self.extracted.append(image.shape)
+        return self.inner.extract(image)
+
+    def match(self, a, b):
+        self.matched += 1
+        return self.inner.match(a, b)
+
+
+def test_features_once_per_frame_pairs_with_several_keyframes_and_metric_depth():
+    seq = open_sequence(STREET)
+    pipe = Pipeline(PipelineSettings(pairing=pairing_preset("kitti")), GroundTruthPoses(), SequenceDisparity(seq))
+    counter = CountingMatcher(pipe.matcher)
+    pipe.matcher = counter
+    n = 10
+    results = [pipe.process(seq[i]) for i in range(n)]
+    assert len(counter.extracted) == n  # once per frame, never per pair
+    assert counter.matched > n  # some frames were matched with more than one keyframe
+    assert results[0].status == FrameStatus.NO_PAIR
+    assert any(len(r.extra.get("partners", [])) == 2 for r in results)
+    with_depth = [r for r in results if r.depth is not None]
+    assert len(with_depth) >= n - 2
+    for r, i in ((r, r.frame) for r in with_depth):
+        gt = seq[i].gt_depth()
+        both = np.isfinite(r.depth) & (gt > 0) & (gt < 80)
+        rel = np.abs(r.depth[both] - gt[both]) / gt[both]
+        assert np.median(rel) < 0.05, (i, np.median(rel))
+        # triangulated points used for the fit are accurate against ground truth
+        assert r.points_depth is not None and len(r.points_depth) >= 10
+    # pairs are with earlier keyframes beyond the paper's thresholds (or the weak fallback)
+    for r in results[1:]:
+        assert r.partner is not None and r.partner < r.frame
+
+
+def test_too_strict_pairing_without_weak_pairs_reports_no_pair():
+    seq = open_sequence(STREET)
+    settings = PipelineSettings(pairing=pairing_preset("kitti", min_translation_m=50.0, min_rotation_deg=90.0,
+                                                       allow_weak_pairs=False))
+    pipe = Pipeline(settings, GroundTruthPoses(), SequenceDisparity(seq))
+    results = [pipe.process(seq[i]) for i in range(3)]
+    assert all(r.status == FrameStatus.NO_PAIR for r in results)
+    assert "no keyframe beyond" in results[1].reason
+    assert all(r.depth is None for r in results)
