@@ -31,7 +31,8 @@ from .types import FrameResult
 
 @dataclass
 class RunSummary:
-    """What a run did. ``metrics`` maps row name ("sfm", "oracle") to averaged metrics dicts."""
+    """What a run did. ``metrics`` maps row name to averaged metrics dicts: the point source
+    ("sfm", or a reference source such as "lidar:16") and "oracle"."""
 
     frames_in_sequence: int
     frames_processed: int
@@ -78,7 +79,9 @@ def run_sequence(
     n = n_total if max_frames is None else min(n_total, max_frames)
     t_start = time.perf_counter()
 
-    point_accuracy_fn = _point_accuracy_fn() if sequence.has_gt_depth else None
+    source = pipeline.settings.points
+    # triangulated points are checked against ground truth; reference points come from it
+    point_accuracy_fn = _point_accuracy_fn() if sequence.has_gt_depth and source == "sfm" else None
     sfm_metrics, oracle_metrics, point_rows = [], [], []
     status_counts: dict[str, int] = {}
     frames_with_depth = 0
@@ -124,7 +127,7 @@ def run_sequence(
             disparity_kind=getattr(pipeline.disparity_source, "kind", ""),
         )
         if sfm_metrics:
-            summary.metrics["sfm"] = average_metrics(sfm_metrics).to_json()
+            summary.metrics[source] = average_metrics(sfm_metrics).to_json()
             if oracle_metrics:
                 summary.metrics["oracle"] = average_metrics(oracle_metrics).to_json()
         if point_rows:
@@ -167,15 +170,14 @@ def _aggregate_points(rows) -> dict:
 
 
 def format_table(summary: RunSummary) -> str:
-    """The printed results table (rows ``sfm`` and ``oracle``)."""
+    """The printed results table: a row for the point source (``sfm``, ``lidar:16``...) and ``oracle``."""
     lines = []
     if summary.metrics:
-        head = f"{'':8s} {'delta1':>8s} {'AbsRel':>8s} {'RMSE':>8s} {'frames evaluated':>17s} {'frames in sequence':>19s}"
+        head = f"{'':10s} {'delta1':>8s} {'AbsRel':>8s} {'RMSE':>8s} {'frames evaluated':>17s} {'frames in sequence':>19s}"
         lines.append(head)
-        for name in ("sfm", "oracle"):
-            m = summary.metrics[name]
+        for name, m in summary.metrics.items():
             lines.append(
-                f"{name:8s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
+                f"{name:10s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
                 f"{m['n_frames']:17d} {summary.frames_in_sequence:19d}"
             )
     lines.append(

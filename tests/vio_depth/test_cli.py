@@ -120,3 +120,16 @@ def test_console_script_reports_errors_without_traceback(tmp_path):
                            "--out", str(tmp_path / "o")], capture_output=True, text=True)
     assert proc.returncode == 1
     assert proc.stderr.startswith("vio-depth: error:") and "Traceback" not in proc.stderr
+
+
+@needs_street
+def test_reference_lidar_points_are_a_named_row(tmp_path, capsys):
+    out = tmp_path / "lidar"
+    rc, table, err = _run(["run", STREET, "--out", out, "--points", "lidar:8", "--max-frames", 3,
+                           "--uncertainty"], capsys)
+    assert rc == 0, err
+    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert set(metrics) == {"lidar:8", "oracle"}
+    assert metrics["lidar:8"]["n_frames"] == 3  # reference points exist from the first frame on
+    assert "lidar:8" in table and "triangulated points vs ground truth" not in table
+    assert len(list((out / "uncertainty").glob("*.png"))) == 3
