@@ -37,7 +37,9 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--points", default="sfm",
                    help="metric point source: sfm (default), or lidar:N / random:N sampled from ground truth")
     r.add_argument("--disparity", default=None, metavar="DIR",
-                   help="read DIR/<image stem>.npy (float32 HxW affine-invariant disparity) instead of the sequence's own")
+                   help="read DIR/<image stem>.npy (float32 HxW affine-invariant disparity) instead of the "
+                        "sequence's own; the word 'simulated' SIMULATES one from the ground-truth depth "
+                        "(for evaluation on datasets without Depth Anything predictions)")
     r.add_argument("--model", default=None, metavar="PATH",
                    help="run Depth Anything V1/V2 (transformers folder, .onnx or original .pth) for the disparity")
     r.add_argument("--model-variant", default=None,
@@ -100,7 +102,13 @@ def _cmd_run(args) -> int:
     parse_points_spec(args.points)
     pairing = pairing_preset(args.pairing, min_rotation_deg=args.min_rotation, min_translation_m=args.min_translation)
     sequence = open_sequence(args.sequence, format=args.format)
-    if args.disparity:
+    if args.disparity == "simulated":
+        from .simulate.gt_disparity import GroundTruthSimulatedDisparity
+
+        if not sequence.has_gt_depth:
+            raise _usage(f"{sequence.root}: --disparity simulated needs ground-truth depth, which this sequence lacks")
+        disparity = GroundTruthSimulatedDisparity(seed=args.seed)
+    elif args.disparity:
         disparity = DisparityDirectory(args.disparity)
     elif args.model:
         from .models import DepthAnythingSettings, ModelDisparity
@@ -117,7 +125,7 @@ def _cmd_run(args) -> int:
     # Check the first frame's inputs before anything is written.
     first = sequence[0]
     first.image()
-    if disparity(first) is None and args.disparity:
+    if isinstance(disparity, DisparityDirectory) and disparity(first) is None:
         raise _usage(f"{disparity.path_for(first)}: missing (expected one <image stem>.npy per frame)")
     pipeline = Pipeline(settings, pose_source, disparity)
     summary = run_sequence(sequence, pipeline, args.out, max_frames=args.max_frames, uncertainty=args.uncertainty,
