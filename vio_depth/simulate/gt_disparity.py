@@ -231,31 +231,15 @@ def densify_depth(depth, fill: str = "linear", max_hole_px: float | None = None)
 
 
 @dataclass(frozen=True)
-class GtSimulation:
-    """One frame's SIMULATED disparity and what it was made from.
+class GtSimulation(SimulatedDisparity):
+    """One frame's SIMULATED disparity (:class:`SimulatedDisparity`: ``disparity``, ``scale``,
+    ``shift`` and the true ``alpha``/``beta``) plus the densified ground truth it was made from.
 
-    Attributes:
-        disparity: (H, W) float32 affine-invariant disparity, NaN where the densified
-            ground truth is undefined (outside the convex hull / beyond ``max_hole_px``).
-        dense_depth: (H, W) float64 metres, the densified ground truth (NaN where undefined).
-        scale: per-frame scale of the simulation (disparity units per 1/m).
-        shift: per-frame shift (disparity units).
+    ``disparity`` is NaN where the densified ground truth is undefined (outside the convex
+    hull / beyond ``max_hole_px``); ``dense_depth`` is (H, W) float64 metres, NaN there too.
     """
 
-    disparity: np.ndarray
     dense_depth: np.ndarray
-    scale: float
-    shift: float
-
-    @property
-    def alpha(self) -> float:
-        """True alpha of ``1/depth = alpha * d + beta`` (m^-1 per disparity unit)."""
-        return 1.0 / self.scale
-
-    @property
-    def beta(self) -> float:
-        """True beta of ``1/depth = alpha * d + beta`` (1/m)."""
-        return -self.shift / self.scale
 
 
 def simulate_gt_disparity(depth, seed: int, frame_index: int,
@@ -285,7 +269,7 @@ def simulate_gt_disparity(depth, seed: int, frame_index: int,
     sim: SimulatedDisparity = simulate_disparity(extended, seed, frame_index, settings.model)
     disparity = sim.disparity.copy()
     disparity[~defined] = np.nan
-    return GtSimulation(disparity, dense, sim.scale, sim.shift)
+    return GtSimulation(disparity, sim.scale, sim.shift, dense_depth=dense)
 
 
 class GroundTruthSimulatedDisparity:
