@@ -9,7 +9,7 @@ frame (only for bad *input*, e.g. an unreadable image).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -100,10 +100,12 @@ class Pipeline:
         return result
 
     def _process(self, frame: Frame) -> FrameResult:
-        disparity = self.disparity_source(frame)
         features = None
         if self.matcher is not None:
-            features = self.matcher.extract(frame.image())  # once per frame, kept if keyframe
+            image = frame.image()  # read once: a model disparity source gets the same pixels
+            features = self.matcher.extract(image)  # once per frame, kept if keyframe
+            frame = replace(frame, load_image=lambda: image)
+        disparity = self.disparity_source(frame)
 
         empty = np.zeros(0)
         uv, depth, sigma, weights = np.zeros((0, 2)), empty, None, None

@@ -66,3 +66,25 @@ def test_too_strict_pairing_without_weak_pairs_reports_no_pair():
     assert all(r.status == FrameStatus.NO_PAIR for r in results)
     assert "no keyframe beyond" in results[1].reason
     assert all(r.depth is None for r in results)
+
+
+def test_image_is_read_once_per_frame_even_with_a_model_disparity_source():
+    seq = open_sequence(STREET)
+    reads = []
+
+    class ModelLike:
+        """Stands in for ModelDisparity: runs on the frame's image."""
+
+        kind = "model"
+
+        def __call__(self, frame):
+            image = frame.image()
+            return seq[frame.index].disparity() + 0.0 * image[..., 0]
+
+    pipe = Pipeline(PipelineSettings(), GroundTruthPoses(), ModelLike())
+    for i in range(3):
+        frame = seq[i]
+        original = frame.load_image
+        frame.load_image = lambda original=original: reads.append(1) or original()
+        pipe.process(frame)
+    assert len(reads) == 3
