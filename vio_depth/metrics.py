@@ -198,3 +198,41 @@ def oracle_fit(disparity, gt, min_depth: float = 1e-3, max_depth: float = 80.0) 
         relative_spread=alpha * spread / mean_fit if mean_fit > 0 else math.nan, mean_metric_disparity=mean_fit,
         status=status, reason=reason,
     )
+
+
+def depth_reprojection_errors(depth_a, depth_b, camera, T_b_a) -> np.ndarray:
+    """Relative errors of frame a's depth moved into frame b with the poses, against b's depth.
+
+    A consistency check of ground-truth depth and poses (e.g. OXTS poses against projected
+    LiDAR): every valid pixel of ``depth_a`` is back-projected, transformed with ``T_b_a``,
+    projected into b and compared with ``depth_b`` at the nearest pixel.
+
+    Args:
+        depth_a: (H, W) metres, 0 / NaN = invalid.
+        depth_b: (H, W) metres, 0 / NaN = invalid.
+        camera: :class:`~vio_depth.camera.Camera` of both (undistorted) depth maps.
+        T_b_a: (4, 4) frame-a-camera to frame-b-camera transform, metres.
+
+    Returns:
+        (M,) ``|z_ab - z_b| / z_b`` for the points landing on a valid pixel of b.
+    """
+    from .checks import check_array
+    from .geometry import transform_points
+
+    da = check_image("depth_a", depth_a).astype(np.float64)
+    db = check_image("depth_b", depth_b).astype(np.float64)
+    if da.shape != db.shape or da.shape != (camera.height, camera.width):
+        raise ShapeError(f"depth maps {da.shape} / {db.shape} do not match the camera "
+                         f"({camera.height}, {camera.width})")
+    T = check_array("T_b_a", T_b_a, (4, 4), finite=True)
+    with np.errstate(invalid="ignore"):
+        v, u = np.nonzero(da > 0)
+    points_b = transform_points(T, camera.backproject(np.stack([u, v], 1).astype(float), da[v, u]))
+    uv, z = camera.project(points_b)
+    c, r = np.round(uv[:, 0]), np.round(uv[:, 1])
+    with np.errstate(invalid="ignore"):
+        ok = (z > 0) & (c >= 0) & (c < camera.width) & (r >= 0) & (r < camera.height)
+    g = db[r[ok].astype(int), c[ok].astype(int)]
+    with np.errstate(invalid="ignore"):
+        hit = g > 0
+    return np.abs(z[ok][hit] - g[hit]) / g[hit]

@@ -108,3 +108,18 @@ def test_oracle_on_7scenes_ground_truth():
     assert fit.ok and fit.alpha == pytest.approx(1 / 3, rel=1e-6)
     m = compute_metrics(metric_depth(disparity, fit), gt, 1e-3, 10.0)
     assert m.abs_rel < 1e-5 and m.n_pixels > 100_000
+
+
+def test_depth_reprojection_errors_zero_for_consistent_poses_and_catch_a_wrong_pose():
+    from vio_depth.camera import Camera
+    from vio_depth.geometry import make_transform
+    from vio_depth.metrics import depth_reprojection_errors
+
+    cam = Camera(64, 48, 50.0, 50.0, 31.5, 23.5)
+    wall_a = np.full((48, 64), 4.0)  # fronto-parallel wall 4 m ahead of camera a
+    T_b_a = make_transform(np.eye(3), [0.0, 0.0, -1.0])  # camera b is 1 m closer to it
+    wall_b = np.full((48, 64), 3.0)
+    err = depth_reprojection_errors(wall_a, wall_b, cam, T_b_a)
+    assert len(err) > 1000 and np.max(err) < 1e-12
+    err_wrong = depth_reprojection_errors(wall_a, wall_b, cam, np.eye(4))
+    assert np.median(err_wrong) == pytest.approx(1.0 / 3.0)

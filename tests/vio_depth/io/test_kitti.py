@@ -11,6 +11,7 @@ from vio_depth.camera import Camera
 from vio_depth.errors import InputError, SequenceFormatError
 from vio_depth.geometry import relative_transform
 from vio_depth.io import open_sequence
+from vio_depth.metrics import depth_reprojection_errors
 from vio_depth.io.kitti import (
     EARTH_RADIUS_M,
     OXTS_FIELDS,
@@ -241,16 +242,8 @@ def test_malformed_files_name_the_file(tmp_path):
 
 def _lidar_reprojection_error(fa, fb):
     """Median relative error of frame a's LiDAR depth moved into frame b with the poses."""
-    da, db, cam = fa.gt_depth(), fb.gt_depth(), fa.camera
-    v, u = np.nonzero(da > 0)
-    p = cam.backproject(np.stack([u, v], 1).astype(float), da[v, u].astype(float))
-    T = relative_transform(fb.T_w_c, fa.T_w_c)
-    uv, z = cam.project(p @ T[:3, :3].T + T[:3, 3])
-    c, r = np.round(uv[:, 0]), np.round(uv[:, 1])
-    ok = (z > 0) & (c >= 0) & (c < cam.width) & (r >= 0) & (r < cam.height)
-    g = db[r[ok].astype(int), c[ok].astype(int)]
-    m = g > 0
-    return float(np.median(np.abs(z[ok][m] - g[m]) / g[m])), int(m.sum())
+    err = depth_reprojection_errors(fa.gt_depth(), fb.gt_depth(), fa.camera, relative_transform(fb.T_w_c, fa.T_w_c))
+    return float(np.median(err)), len(err)
 
 
 @pytest.mark.shared_data
