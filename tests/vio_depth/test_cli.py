@@ -133,3 +133,27 @@ def test_reference_lidar_points_are_a_named_row(tmp_path, capsys):
     assert metrics["lidar:8"]["n_frames"] == 3  # reference points exist from the first frame on
     assert "lidar:8" in table and "triangulated points vs ground truth" not in table
     assert len(list((out / "uncertainty").glob("*.png"))) == 3
+
+
+@needs_street
+def test_unreadable_image_mid_run_is_one_line_and_leaves_only_complete_files(tmp_path, capsys):
+    """Regression: a truncated JPEG made libjpeg print its own warning and decode grey;
+    outputs were created with mode 0600 by the atomic writer."""
+    import os
+    import shutil
+    import stat
+
+    seq_dir = tmp_path / "street"
+    shutil.copytree(STREET, seq_dir)
+    bad = seq_dir / "images" / "000005.jpg"
+    bad.write_bytes(bad.read_bytes()[:2000])
+    out = tmp_path / "out"
+    rc, _, err = _run(["run", seq_dir, "--out", out, "--max-frames", 8], capsys)
+    _assert_one_line_error(rc, err, "000005.jpg", "truncated JPEG")
+    assert not (out / "frames.jsonl").exists() and not list(out.rglob("*.partial"))
+    written = sorted(p.name for p in (out / "depth").glob("*.png"))
+    assert written and max(written) < "000005.png"  # frames before the bad one, each complete
+    umask = os.umask(0)
+    os.umask(umask)
+    for p in (out / "depth").glob("*.png"):
+        assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask

@@ -202,6 +202,9 @@ def read_rgb_image(path, camera: Camera | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise SequenceFormatError(path, "image file not found")
+    if path.suffix.lower() in (".jpg", ".jpeg") and not _has_jpeg_end(path):
+        # checked here: libjpeg would print its own warning and decode a grey-filled image
+        raise SequenceFormatError(path, "truncated JPEG (no end-of-image marker)")
     image = cv2.imread(str(path), cv2.IMREAD_COLOR_RGB)
     if image is None:
         raise SequenceFormatError(path, "cannot decode image")
@@ -209,6 +212,15 @@ def read_rgb_image(path, camera: Camera | None = None) -> np.ndarray:
         raise SequenceFormatError(
             path, f"image is {image.shape[1]}x{image.shape[0]} but the camera is {camera.width}x{camera.height}")
     return image
+
+
+def _has_jpeg_end(path: Path) -> bool:
+    """True when the JPEG file ends with the EOI marker FF D9 (trailing zero padding allowed)."""
+    with open(path, "rb") as fh:
+        fh.seek(max(0, path.stat().st_size - 64))
+        tail = np.frombuffer(fh.read(), dtype=np.uint8)
+    nz = np.flatnonzero(tail)
+    return len(nz) >= 2 and tail[nz[-1]] == 0xD9 and tail[nz[-1] - 1] == 0xFF
 
 
 def _load_depth(path: Path, camera: Camera, scale: float) -> np.ndarray:
