@@ -13,10 +13,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from triangulation import TriangulationSettings
+
 from .checks import check_array
 from .disparity import DisparitySource
 from .keyframes import PAIRING_PRESETS, Keyframe, KeyframeBuffer, Motion, PairingSettings
 from .poses import PoseSource
+from .rescale import RescalerSettings
 from .types import Frame, FrameResult, FrameStatus
 
 
@@ -28,8 +31,8 @@ class PipelineSettings:
         matcher: matcher preset name (see ``matchers.available_matchers()``).
         device: "cpu" / "cuda" for learned matchers; None = cuda when available.
         pairing: keyframe/pair selection thresholds.
-        triangulation: per-point checks (``triangulation.TriangulationSettings``).
-        rescaler: robust fit, fallbacks and temporal filter (``vio_depth.rescale.RescalerSettings``).
+        triangulation: per-point checks (:class:`triangulation.TriangulationSettings`).
+        rescaler: robust fit, fallbacks and temporal filter (:class:`vio_depth.rescale.RescalerSettings`).
         min_matches: fewer matches than this in a pair -> status too_few_matches.
         points: "sfm" (triangulated points) or a reference source "lidar:N" / "random:N"
             sampled from ground-truth depth, for comparison on the same frames.
@@ -39,8 +42,8 @@ class PipelineSettings:
     matcher: str = "sift"
     device: str | None = None
     pairing: PairingSettings = PAIRING_PRESETS["kitti"]
-    triangulation: object = None
-    rescaler: object = None
+    triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
+    rescaler: RescalerSettings = field(default_factory=RescalerSettings)
     min_matches: int = 20
     points: str = "sfm"
     points_seed: int = 0
@@ -73,17 +76,15 @@ class Pipeline:
     """
 
     def __init__(self, settings: PipelineSettings, pose_source: PoseSource, disparity_source: DisparitySource):
-        from triangulation import TriangulationSettings
-
         from .reference_points import parse_points_spec
-        from .rescale import Rescaler, RescalerSettings
+        from .rescale import Rescaler
 
         self.settings = settings
         self.pose_source = pose_source
         self.disparity_source = disparity_source
         self.points_spec = parse_points_spec(settings.points)
-        self.triangulation_settings = settings.triangulation or TriangulationSettings()
-        self.rescaler = Rescaler(settings.rescaler or RescalerSettings())
+        self.triangulation_settings = settings.triangulation
+        self.rescaler = Rescaler(settings.rescaler)
         self.buffer = KeyframeBuffer(settings.pairing)
         self.matcher = None
         if self.points_spec.kind == "sfm":
