@@ -48,6 +48,9 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="Depth Anything input size (default 518)")
     r.add_argument("--max-frames", type=int, default=None, metavar="N", help="process only the first N frames")
     r.add_argument("--no-temporal", action="store_true", help="disable the Kalman filter on (alpha, beta)")
+    r.add_argument("--no-backfill", action="store_true",
+                   help="streaming behaviour only: no backward pass for the first frames that found no "
+                        "earlier partner (see docs/design.md)")
     r.add_argument("--uncertainty", action="store_true",
                    help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
     r.add_argument("--max-depth", type=float, default=80.0, help="depth cap for evaluation, metres (default 80)")
@@ -129,7 +132,8 @@ def _cmd_run(args) -> int:
         raise _usage(f"{disparity.path_for(first)}: missing (expected one <image stem>.npy per frame)")
     pipeline = Pipeline(settings, pose_source, disparity)
     summary = run_sequence(sequence, pipeline, args.out, max_frames=args.max_frames, uncertainty=args.uncertainty,
-                           max_eval_depth=args.max_depth, progress=args.progress)
+                           max_eval_depth=args.max_depth, progress=args.progress,
+                           backfill=not args.no_backfill)
     print(format_table(summary))
     return 0
 

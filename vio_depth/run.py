@@ -15,7 +15,6 @@ an interrupted run never leaves a half-written file; ``frames.jsonl`` and
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -47,6 +46,18 @@ class RunSummary:
         return asdict(self)
 
 
+@dataclass
+class _FrameRecord:
+    """Everything kept of one processed frame until the outputs are written."""
+
+    json: dict
+    status: str
+    has_depth: bool
+    metrics: object = None  # DepthMetrics of the prediction
+    oracle: object = None  # DepthMetrics of the oracle fit
+    points: object = None  # PointAccuracy of the triangulated points
+
+
 def run_sequence(
     sequence: Sequence,
     pipeline: Pipeline,
@@ -57,19 +68,24 @@ def run_sequence(
     min_eval_depth: float = 1e-3,
     max_eval_depth: float = 80.0,
     progress: bool | None = None,
+    backfill: bool = True,
 ) -> RunSummary:
     """Process ``sequence`` (or its first ``max_frames`` frames) and write outputs to ``out_dir``.
 
     Args:
         progress: show a progress bar (None = only when stderr is a terminal).
+        backfill: offline second chance for the frames at the start of the sequence that got
+            no depth because no earlier keyframe was far enough away: after the forward pass,
+            a fresh pipeline runs backwards in time from a later frame, so those frames pair
+            with *later* keyframes (:func:`_backfill`). Only results with depth replace the
+            forward ones; they are marked ``"backfilled": true`` in ``frames.jsonl``.
+            Needs a pose source that works in both directions (``gt``; ``imu`` integrates
+            forward only, so its backward pairs fail and nothing changes).
 
     Raises:
         InputError: unreadable inputs; partially written outputs are removed.
     """
     from tqdm import tqdm
-
-    from .metrics import average_metrics, compute_metrics, oracle_fit
-    from .rescale import depth_sigma_map, metric_depth
 
     out_dir = Path(out_dir)
     depth_dir, sigma_dir = out_dir / "depth", out_dir / "uncertainty"
@@ -78,67 +94,110 @@ def run_sequence(
     n_total = len(sequence)
     n = n_total if max_frames is None else min(n_total, max_frames)
     t_start = time.perf_counter()
-
     source = pipeline.settings.points
     # triangulated points are checked against ground truth; reference points come from it
     point_accuracy_fn = _point_accuracy_fn() if sequence.has_gt_depth and source == "sfm" else None
-    sfm_metrics, oracle_metrics, point_rows = [], [], []
-    status_counts: dict[str, int] = {}
-    frames_with_depth = 0
-    lines_path = out_dir / ".frames.jsonl.partial"
-    try:
-        with open(lines_path, "w") as lines:
-            bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
-                       disable=(not sys.stderr.isatty()) if progress is None else not progress,
-                       file=sys.stderr)
-            for i in bar:
-                frame = sequence[i]
-                res: FrameResult = pipeline.process(frame)
-                status_counts[res.status.value] = status_counts.get(res.status.value, 0) + 1
-                if res.depth is not None:
-                    frames_with_depth += 1
-                    write_depth_png(depth_dir / f"{frame.stem}.png", res.depth)
-                    if uncertainty:
-                        write_depth_png(sigma_dir / f"{frame.stem}.png", depth_sigma_map(res.disparity, res.fit))
-                gt = frame.gt_depth() if sequence.has_gt_depth else None
-                if gt is not None and res.depth is not None:
-                    m = compute_metrics(res.depth, gt, min_depth=min_eval_depth, max_depth=max_eval_depth)
-                    sfm_metrics.append(m)
-                    res.extra["abs_rel"] = round(float(m.abs_rel), 5)
-                    res.extra["delta1"] = round(float(m.delta1), 5)
-                    ofit = oracle_fit(res.disparity, gt, min_depth=min_eval_depth, max_depth=max_eval_depth)
-                    if ofit.ok:
-                        om = compute_metrics(metric_depth(res.disparity, ofit), gt, min_depth=min_eval_depth,
-                                             max_depth=max_eval_depth)
-                        oracle_metrics.append(om)
-                        res.extra["oracle_abs_rel"] = round(float(om.abs_rel), 5)
-                if gt is not None and point_accuracy_fn is not None and res.points_uv is not None and len(res.points_uv):
-                    acc = point_accuracy_fn(res.points_uv, res.points_depth, gt)
-                    point_rows.append(acc)
-                    res.extra.update(_point_json(acc))
-                lines.write(json.dumps(res.to_json()) + "\n")
-                bar.set_postfix(depth=f"{frames_with_depth}/{i + 1}")
-        summary = RunSummary(
-            frames_in_sequence=n_total,
-            frames_processed=n,
-            frames_with_depth=frames_with_depth,
-            status_counts=status_counts,
-            seconds=round(time.perf_counter() - t_start, 2),
-            disparity_kind=getattr(pipeline.disparity_source, "kind", ""),
-        )
-        if sfm_metrics:
-            summary.metrics[source] = average_metrics(sfm_metrics).to_json()
-            if oracle_metrics:
-                summary.metrics["oracle"] = average_metrics(oracle_metrics).to_json()
-        if point_rows:
-            summary.point_accuracy = _aggregate_points(point_rows)
-        if sequence.has_gt_depth:
-            write_bytes_atomic(out_dir / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
-        os.replace(lines_path, out_dir / "frames.jsonl")
-    except BaseException:
-        lines_path.unlink(missing_ok=True)
-        raise
+
+    def record(frame, res: FrameResult) -> _FrameRecord:
+        return _record(frame, res, sequence.has_gt_depth, depth_dir, sigma_dir if uncertainty else None,
+                       min_eval_depth, max_eval_depth, point_accuracy_fn)
+
+    records: dict[int, _FrameRecord] = {}
+    bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
+               disable=(not sys.stderr.isatty()) if progress is None else not progress, file=sys.stderr)
+    with_depth = 0
+    for i in bar:
+        frame = sequence[i]
+        records[i] = record(frame, pipeline.process(frame))
+        with_depth += records[i].has_depth
+        bar.set_postfix(depth=f"{with_depth}/{i + 1}")
+    if backfill and pipeline.settings.points == "sfm":
+        for i, (frame, res) in _backfill(sequence, pipeline, records, n).items():
+            res.extra["backfilled"] = True
+            res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
+            records[i] = record(frame, res)
+
+    summary = RunSummary(
+        frames_in_sequence=n_total,
+        frames_processed=n,
+        frames_with_depth=sum(r.has_depth for r in records.values()),
+        status_counts={},
+        seconds=round(time.perf_counter() - t_start, 2),
+        disparity_kind=getattr(pipeline.disparity_source, "kind", ""),
+    )
+    for r in records.values():
+        summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
+    ordered = [records[i] for i in range(n)]
+    sfm_metrics = [r.metrics for r in ordered if r.metrics is not None]
+    oracle_metrics = [r.oracle for r in ordered if r.oracle is not None]
+    point_rows = [r.points for r in ordered if r.points is not None]
+    if sfm_metrics:
+        from .metrics import average_metrics
+
+        summary.metrics[source] = average_metrics(sfm_metrics).to_json()
+        if oracle_metrics:
+            summary.metrics["oracle"] = average_metrics(oracle_metrics).to_json()
+    if point_rows:
+        summary.point_accuracy = _aggregate_points(point_rows)
+    # frames.jsonl and metrics.json appear only now, complete, after every frame succeeded
+    if sequence.has_gt_depth:
+        write_bytes_atomic(out_dir / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
+    write_bytes_atomic(out_dir / "frames.jsonl", "".join(json.dumps(r.json) + "\n" for r in ordered).encode())
     return summary
+
+
+def _record(frame, res: FrameResult, has_gt: bool, depth_dir: Path, sigma_dir: Path | None,
+            min_eval_depth: float, max_eval_depth: float, point_accuracy_fn) -> _FrameRecord:
+    """Write one frame's depth (and sigma) PNG, evaluate it, and keep its JSON line."""
+    from .metrics import compute_metrics, oracle_fit
+    from .rescale import depth_sigma_map, metric_depth
+
+    rec = _FrameRecord(json={}, status=res.status.value, has_depth=res.depth is not None)
+    if res.depth is not None:
+        write_depth_png(depth_dir / f"{frame.stem}.png", res.depth)
+        if sigma_dir is not None:
+            write_depth_png(sigma_dir / f"{frame.stem}.png", depth_sigma_map(res.disparity, res.fit))
+    gt = frame.gt_depth() if has_gt else None
+    if gt is not None and res.depth is not None:
+        rec.metrics = compute_metrics(res.depth, gt, min_depth=min_eval_depth, max_depth=max_eval_depth)
+        res.extra["abs_rel"] = round(float(rec.metrics.abs_rel), 5)
+        res.extra["delta1"] = round(float(rec.metrics.delta1), 5)
+        ofit = oracle_fit(res.disparity, gt, min_depth=min_eval_depth, max_depth=max_eval_depth)
+        if ofit.ok:
+            rec.oracle = compute_metrics(metric_depth(res.disparity, ofit), gt, min_depth=min_eval_depth,
+                                         max_depth=max_eval_depth)
+            res.extra["oracle_abs_rel"] = round(float(rec.oracle.abs_rel), 5)
+    if gt is not None and point_accuracy_fn is not None and res.points_uv is not None and len(res.points_uv):
+        rec.points = point_accuracy_fn(res.points_uv, res.points_depth, gt)
+        res.extra.update(_point_json(rec.points))
+    rec.json = res.to_json()
+    return rec
+
+
+def _backfill(sequence: Sequence, pipeline: Pipeline, records: dict, n: int) -> dict:
+    """Results with depth for the leading frames that had none, from a backward pass.
+
+    The leading frames are those before the first frame with depth whose failure is about
+    pairing or points (not a missing disparity). A fresh pipeline with the same settings
+    processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
+    frames beyond the last leading frame, so each leading frame meets keyframes from its
+    future. Returns ``{index: (frame, FrameResult)}`` for the frames that now have depth.
+    """
+    first_ok = next((i for i in range(n) if records[i].has_depth), None)
+    if first_ok is None or first_ok == 0:
+        return {}
+    lead = [i for i in range(first_ok) if records[i].status != "no_disparity"]
+    if not lead:
+        return {}
+    backward = Pipeline(pipeline.settings, pipeline.pose_source, pipeline.disparity_source)
+    last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
+    out = {}
+    for i in range(last, -1, -1):
+        frame = sequence[i]
+        res = backward.process(frame)
+        if i in lead and res.depth is not None:
+            out[i] = (frame, res)
+    return out
 
 
 def _point_accuracy_fn():

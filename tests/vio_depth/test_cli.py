@@ -157,3 +157,20 @@ def test_unreadable_image_mid_run_is_one_line_and_leaves_only_complete_files(tmp
     os.umask(umask)
     for p in (out / "depth").glob("*.png"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask
+
+
+@needs_street
+def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_path, capsys):
+    rows = {}
+    for flag in ([], ["--no-backfill"]):
+        out = tmp_path / ("plain" if flag else "backfill")
+        rc, _, err = _run(["run", STREET, "--out", out, "--max-frames", 6, *flag], capsys)
+        assert rc == 0, err
+        rows[bool(flag)] = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+    streaming, offline = rows[True][0], rows[False][0]
+    assert streaming["status"] == "no_pair" and streaming["alpha"] is None
+    assert offline["status"] == "ok" and offline["backfilled"] is True
+    assert offline["partner_keyframe"] > 0  # a later frame
+    assert offline["abs_rel"] < 0.1
+    # frames that had depth in the forward pass are untouched
+    assert [r["alpha"] for r in rows[False][1:]] == [r["alpha"] for r in rows[True][1:]]
