@@ -59,7 +59,7 @@ from typing import Any, Callable
 import numpy as np
 
 from vio_depth.checks import check_array, check_image
-from vio_depth.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError
+from vio_depth.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError, lookup
 
 from .base import Features, Matches
 from .weights import BundledWeights, load_bundled
@@ -311,9 +311,7 @@ def learned_settings(name: str, **overrides) -> LearnedMatcherSettings:
     Raises:
         UnknownNameError: unknown preset name (the message lists the valid ones).
     """
-    if name not in PRESETS:
-        raise UnknownNameError("learned matcher", name, PRESETS)
-    return replace(PRESETS[name], **overrides)
+    return replace(lookup("learned matcher", name, PRESETS), **overrides)
 
 
 def lightglue_config(settings: LearnedMatcherSettings) -> dict:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-from vio_depth.errors import UnknownNameError
+from vio_depth.errors import lookup
 
 from .base import Matcher
 
@@ -44,9 +44,7 @@ def create_matcher(name: str, device: str | None = None) -> Matcher:
         UnknownNameError (a ValueError): unknown name; the message lists valid names.
         MissingDependencyError: a learned preset whose extra is not installed.
     """
-    if name not in _PRESETS:
-        raise UnknownNameError("matcher", name, _PRESETS)
-    target = _PRESETS[name]
+    target = lookup("matcher", name, _PRESETS)
     if isinstance(target, str):
         module, attr = target.split(":")
         target = getattr(importlib.import_module(module), attr)

@@ -52,3 +52,14 @@ class MissingDependencyError(VioDepthError, ImportError):
             f"{purpose} needs the optional package {package!r}, which is not installed; "
             f"install it with: pip install -e '.[{extra}]' (see README.md)"
         )
+
+
+def lookup(kind: str, name: str, table):
+    """``table[name]``, or :class:`UnknownNameError` naming ``kind`` and listing the valid names.
+
+    The one way presets and registries are chosen by name (CLI and API alike).
+    """
+    try:
+        return table[name]
+    except (KeyError, TypeError):
+        raise UnknownNameError(kind, name, table) from None

@@ -17,7 +17,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import SettingsError, UnknownNameError
+from .errors import SettingsError, lookup
 from .geometry import rotation_angle_deg
 from .types import Frame
 
@@ -67,10 +67,8 @@ PAIRING_PRESETS: dict[str, PairingSettings] = {
 
 def pairing_preset(name: str, **overrides) -> PairingSettings:
     """Preset ``name`` from :data:`PAIRING_PRESETS`, with optional field overrides."""
-    if name not in PAIRING_PRESETS:
-        raise UnknownNameError("pairing preset", name, PAIRING_PRESETS)
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    return replace(PAIRING_PRESETS[name], **overrides)
+    preset = lookup("pairing preset", name, PAIRING_PRESETS)
+    return replace(preset, **{k: v for k, v in overrides.items() if v is not None})
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .errors import UnknownNameError
+from .errors import lookup
 from .geometry import relative_transform
 from .types import Frame
 
@@ -72,6 +72,4 @@ def create_pose_source(name: str, sequence) -> PoseSource:
         UnknownNameError: unknown name (lists the valid ones).
         InputError: e.g. "imu" on a sequence without IMU samples.
     """
-    if name not in _POSE_SOURCES:
-        raise UnknownNameError("pose source", name, _POSE_SOURCES)
-    return _POSE_SOURCES[name](sequence)
+    return lookup("pose source", name, _POSE_SOURCES)(sequence)

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .checks import check_array, check_image
-from .errors import InputError, UnknownNameError
+from .errors import InputError, lookup
 from .temporal import (
     AffineKalmanFilter,
     KalmanEstimate,
@@ -929,9 +929,7 @@ def rescaler_preset(name: str) -> RescalerSettings:
     Raises:
         UnknownNameError: unknown name (lists the valid ones).
     """
-    if name not in _RESCALER_PRESETS:
-        raise UnknownNameError("rescaler preset", name, _RESCALER_PRESETS)
-    return _RESCALER_PRESETS[name]()
+    return lookup("rescaler preset", name, _RESCALER_PRESETS)()
 
 
 @dataclass(frozen=True)

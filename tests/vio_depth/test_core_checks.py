@@ -72,3 +72,14 @@ def test_camera_rejects_bad_intrinsics():
         Camera(640, 480, -1, 500, 320, 240)
     with pytest.raises(InputError):
         Camera(640, 480, 500, 500, 320, 240, dist=(0.1, 0.2, 0.3))
+
+
+def test_lookup_returns_the_entry_or_lists_valid_names():
+    from vio_depth.errors import UnknownNameError, lookup
+
+    table = {"b": 2, "a": 1}
+    assert lookup("thing", "a", table) == 1
+    with pytest.raises(UnknownNameError, match=r"unknown thing 'c'; valid names: a, b"):
+        lookup("thing", "c", table)
+    with pytest.raises(ValueError):  # unhashable names are unknown too, not a TypeError
+        lookup("thing", ["a"], table)

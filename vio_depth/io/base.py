@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from ..camera import Camera
-from ..errors import InputError, UnknownNameError
+from ..errors import InputError, lookup
 from ..types import Frame, ImuData
 
 
@@ -107,9 +107,7 @@ def open_sequence(path, format: str | None = None) -> Sequence:
     if not path.exists():
         raise InputError(f"{path}: no such file or directory")
     if format is not None:
-        if format not in _FORMATS:
-            raise UnknownNameError("sequence format", format, _FORMATS)
-        return _FORMATS[format].open(path)
+        return lookup("sequence format", format, _FORMATS).open(path)
     for fmt in _FORMATS.values():
         if fmt.detect(path):
             return fmt.open(path)

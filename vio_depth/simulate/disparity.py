@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from ..checks import check_array
-from ..errors import InputError, UnknownNameError
+from ..errors import InputError, lookup
 
 
 @dataclass(frozen=True)
@@ -126,9 +126,7 @@ def disparity_preset(name: str) -> DisparitySimulation:
     Raises:
         UnknownNameError: unknown name (lists the valid ones).
     """
-    if name not in _PRESETS:
-        raise UnknownNameError("disparity simulation preset", name, _PRESETS)
-    return _PRESETS[name]
+    return lookup("disparity simulation preset", name, _PRESETS)
 
 
 @dataclass(frozen=True)

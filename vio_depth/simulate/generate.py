@@ -23,7 +23,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..checks import check_array
-from ..errors import InputError, UnknownNameError
+from ..errors import InputError, lookup
 from ..geometry import invert_transform, make_transform
 from ..io.native import NativeSequenceWriter, simulated_disparity
 from .disparity import disparity_preset
@@ -182,9 +182,7 @@ def sample_spec(name: str) -> SampleSpec:
     Raises:
         UnknownNameError: unknown name (lists the valid ones).
     """
-    if name not in _SPECS:
-        raise UnknownNameError("sample sequence", name, _SPECS)
-    return _SPECS[name]
+    return lookup("sample sequence", name, _SPECS)
 
 
 def camera_poses(spec: SampleSpec, trajectory: Trajectory, t) -> np.ndarray:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..checks import check_array
-from ..errors import InputError, UnknownNameError
+from ..errors import InputError, lookup
 from .textures import MipTexture, build_mip_texture, load_photo, photo_tiles
 
 
@@ -552,6 +552,4 @@ def build_scene(name: str, seed: int = 0) -> Scene:
     Raises:
         UnknownNameError: unknown name (lists the valid ones).
     """
-    if name not in _SCENES:
-        raise UnknownNameError("scene", name, _SCENES)
-    return _SCENES[name](seed)
+    return lookup("scene", name, _SCENES)(seed)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from ..checks import check_array, check_image
-from ..errors import InputError, MissingDependencyError, UnknownNameError
+from ..errors import InputError, MissingDependencyError, UnknownNameError, lookup
 
 
 @dataclass(frozen=True)
@@ -286,6 +286,4 @@ def photo_tiles(name: str) -> bool:
     """Whether texture ``name`` is a tileable material (periodic) rather than a decal (clamped)."""
     if name in _PROCEDURAL:
         return True
-    if name not in _PHOTOS:
-        raise UnknownNameError("texture photo", name, photo_names())
-    return _PHOTOS[name][1]
+    return lookup("texture photo", name, _PHOTOS)[1]
