@@ -112,7 +112,7 @@ class BenchDataset:
     label: str = ""
 
     def __post_init__(self):
-        from vio_depth.errors import UnknownNameError
+        from vio_core.errors import UnknownNameError
 
         if self.disparity not in DISPARITY_KINDS:
             raise UnknownNameError("benchmark disparity kind", self.disparity, DISPARITY_KINDS)
@@ -364,7 +364,7 @@ def machine_line(device: str) -> str:
 def main(argv=None) -> int:
     from matchers import available_matchers
 
-    from vio_depth.errors import UnknownNameError
+    from vio_core.errors import UnknownNameError
     from vio_depth.io import open_sequence
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -413,7 +413,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    from vio_depth.errors import VioDepthError
+    from vio_core.errors import VioDepthError
 
     try:
         sys.exit(main())

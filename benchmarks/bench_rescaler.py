@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vio_depth.errors import MissingDependencyError
+from vio_core.errors import MissingDependencyError
 from vio_depth.rescale import RansacSettings, fit_affine
 
 SIZES = (100, 1000, 10000)

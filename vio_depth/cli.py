@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .errors import VioDepthError
+from vio_core.errors import VioDepthError
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -89,7 +89,7 @@ def _cmd_run(args) -> int:
 
     from matchers import available_matchers
 
-    from .errors import UnknownNameError
+    from vio_core.errors import UnknownNameError
     from .poses import available_pose_sources
     from .reference_points import parse_points_spec
 

@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .errors import InputError
+from vio_core.errors import InputError
 from .types import Frame
 
 

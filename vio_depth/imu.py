@@ -54,9 +54,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .checks import check_array, check_transform
-from .errors import InputError
-from .geometry import invert_transform
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError
+from vio_core.geometry import invert_transform
 from .poses import RelativePose
 from .types import Frame, ImuData
 

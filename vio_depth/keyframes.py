@@ -17,8 +17,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import SettingsError, lookup
-from .geometry import rotation_angle_deg
+from vio_core.errors import SettingsError, lookup
+from vio_core.geometry import rotation_angle_deg
 from .types import Frame
 
 

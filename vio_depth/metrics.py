@@ -23,8 +23,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .checks import check_image
-from .errors import InputError, ShapeError
+from vio_core.checks import check_image
+from vio_core.errors import InputError, ShapeError
 from .rescale import AffineFit, FitStatus
 
 
@@ -210,14 +210,14 @@ def depth_reprojection_errors(depth_a, depth_b, camera, T_b_a) -> np.ndarray:
     Args:
         depth_a: (H, W) metres, 0 / NaN = invalid.
         depth_b: (H, W) metres, 0 / NaN = invalid.
-        camera: :class:`~vio_depth.camera.Camera` of both (undistorted) depth maps.
+        camera: :class:`~vio_core.camera.Camera` of both (undistorted) depth maps.
         T_b_a: (4, 4) frame-a-camera to frame-b-camera transform, metres.
 
     Returns:
         (M,) ``|z_ab - z_b| / z_b`` for the points landing on a valid pixel of b.
     """
-    from .checks import check_array
-    from .geometry import transform_points
+    from vio_core.checks import check_array
+    from vio_core.geometry import transform_points
 
     da = check_image("depth_a", depth_a).astype(np.float64)
     db = check_image("depth_b", depth_b).astype(np.float64)

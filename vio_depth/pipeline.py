@@ -15,7 +15,7 @@ import numpy as np
 
 from triangulation import TriangulationSettings
 
-from .checks import check_array
+from vio_core.checks import check_array
 from .disparity import DisparitySource
 from .keyframes import PAIRING_PRESETS, Keyframe, KeyframeBuffer, Motion, PairingSettings
 from .poses import PoseSource

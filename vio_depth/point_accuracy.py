@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .checks import check_array
-from .errors import InputError
+from vio_core.checks import check_array
+from vio_core.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from typing import Protocol
 
 import numpy as np
 
-from .errors import lookup
-from .geometry import relative_transform
+from vio_core.errors import lookup
+from vio_core.geometry import relative_transform
 from .types import Frame
 
 

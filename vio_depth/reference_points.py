@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import check_image
-from .errors import InputError, UnknownNameError
+from vio_core.checks import check_image
+from vio_core.errors import InputError, UnknownNameError
 
 POINT_SPEC_FORMS = ("sfm", "lidar:<beams>", "random:<count>")
 

@@ -45,8 +45,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .checks import check_array, check_image
-from .errors import InputError, lookup
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError, lookup
 from .temporal import (
     AffineKalmanFilter,
     KalmanEstimate,

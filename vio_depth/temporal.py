@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .checks import check_array, check_image
-from .errors import InputError
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from .camera import Camera
-from .checks import check_array
+from vio_core.camera import Camera
+from vio_core.checks import check_array
 
 
 @dataclass(frozen=True)

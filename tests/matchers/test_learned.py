@@ -27,7 +27,7 @@ import matchers  # noqa: E402
 from matchers import learned  # noqa: E402
 from matchers.base import Features, Matches  # noqa: E402
 from matchers.weights import MissingWeightsError, WeightLoadError, load_bundled  # noqa: E402
-from vio_depth.errors import InputError, MissingDependencyError, UnknownNameError  # noqa: E402
+from vio_core.errors import InputError, MissingDependencyError, UnknownNameError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / ".." / "shared" / "data"

@@ -13,7 +13,7 @@ skdata = pytest.importorskip("skimage.data")
 
 from matchers import Matcher, Matches, create_matcher  # noqa: E402
 from matchers.sift import SiftMatcher, SiftSettings, nearest_two, normalize_descriptors, ratio_match  # noqa: E402
-from vio_depth.errors import InputError, ShapeError  # noqa: E402
+from vio_core.errors import InputError, ShapeError  # noqa: E402
 
 # rotation 0.2 rad, scale 0.9, shift, mild perspective
 H_TRUE = np.array([[0.9 * np.cos(0.2), -0.9 * np.sin(0.2), 60.0],

@@ -6,8 +6,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from triangulation import TriangulationSettings, triangulate_pair
-from vio_depth.camera import Camera
-from vio_depth.geometry import invert_transform, make_transform, transform_points
+from vio_core.camera import Camera
+from vio_core.geometry import invert_transform, make_transform, transform_points
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
 T_REF_CUR = invert_transform(make_transform(Rotation.from_rotvec([0.05, -0.3, 0.1]).as_matrix(),

@@ -17,9 +17,9 @@ from triangulation import (
     sampson_distance,
     triangulate_pair,
 )
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, ShapeError
-from vio_depth.geometry import invert_transform, make_transform, transform_points
+from vio_core.camera import Camera
+from vio_core.errors import InputError, ShapeError
+from vio_core.geometry import invert_transform, make_transform, transform_points
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
 SETTINGS = TriangulationSettings()

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError
-from vio_depth.geometry import invert_transform, make_transform, relative_transform, rotation_angle_deg
+from vio_core.camera import Camera
+from vio_core.errors import InputError
+from vio_core.geometry import invert_transform, make_transform, relative_transform, rotation_angle_deg
 from vio_depth.imu import ImuPoseSettings, ImuPoseSource, adjoint
 from vio_depth.types import Frame, ImuData
 

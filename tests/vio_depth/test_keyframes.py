@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.errors import UnknownNameError
-from vio_depth.geometry import make_transform
+from vio_core.errors import UnknownNameError
+from vio_core.geometry import make_transform
 from vio_depth.keyframes import (
     PAIRING_PRESETS,
     Keyframe,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vio_depth.errors import InputError, ShapeError
+from vio_core.errors import InputError, ShapeError
 from vio_depth.metrics import DepthMetrics, average_metrics, compute_metrics, oracle_fit
 from vio_depth.rescale import FitStatus, metric_depth
 
@@ -111,8 +111,8 @@ def test_oracle_on_7scenes_ground_truth():
 
 
 def test_depth_reprojection_errors_zero_for_consistent_poses_and_catch_a_wrong_pose():
-    from vio_depth.camera import Camera
-    from vio_depth.geometry import make_transform
+    from vio_core.camera import Camera
+    from vio_core.geometry import make_transform
     from vio_depth.metrics import depth_reprojection_errors
 
     cam = Camera(64, 48, 50.0, 50.0, 31.5, 23.5)

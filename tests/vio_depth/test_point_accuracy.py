@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vio_depth.errors import ShapeError
+from vio_core.errors import ShapeError
 from vio_depth.point_accuracy import point_depth_errors, window_median_depth
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vio_depth.errors import InputError, UnknownNameError
+from vio_core.errors import InputError, UnknownNameError
 from vio_depth.reference_points import (
     PointSourceKind,
     PointSourceSpec,

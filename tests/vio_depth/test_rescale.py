@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 
-from vio_depth.errors import InputError, ShapeError, UnknownNameError
+from vio_core.errors import InputError, ShapeError, UnknownNameError
 from vio_depth.rescale import (
     FitStatus,
     RansacSettings,

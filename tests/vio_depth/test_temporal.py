@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from vio_depth.errors import InputError
+from vio_core.errors import InputError
 from vio_depth.rescale import Rescaler, RescalerSettings, RescaleStatus
 from vio_depth.temporal import (
     AffineKalmanFilter,

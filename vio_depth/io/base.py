@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
-from ..camera import Camera
-from ..errors import InputError, lookup
+from vio_core.camera import Camera
+from vio_core.errors import InputError, lookup
 from ..types import Frame, ImuData
 
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..checks import check_array
-from ..errors import InputError, SequenceFormatError
+from vio_core.checks import check_array
+from vio_core.errors import InputError, SequenceFormatError
 
 #: KITTI / native-format depth scale: stored uint16 value per metre.
 DEPTH_PNG_SCALE = 256.0

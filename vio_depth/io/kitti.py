@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..camera import Camera
-from ..checks import check_array, check_transform
-from ..errors import InputError, SequenceFormatError
-from ..geometry import invert_transform
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError, SequenceFormatError
+from vio_core.geometry import invert_transform
 from ..types import Frame, ImuData
 from .base import Sequence, SequenceFormat, register_format
 from .native import read_rgb_image

@@ -26,10 +26,10 @@ from typing import Iterable
 import cv2
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_array, check_image, check_transform
-from ..errors import InputError, SequenceFormatError
-from ..geometry import transform_to_tum
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_image, check_transform
+from vio_core.errors import InputError, SequenceFormatError
+from vio_core.geometry import transform_to_tum
 from ..types import Frame, ImuData
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import DEPTH_PNG_SCALE, read_depth_png, write_depth_png

@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..camera import Camera
-from ..checks import check_array
-from ..errors import InputError, SequenceFormatError
+from vio_core.camera import Camera
+from vio_core.checks import check_array
+from vio_core.errors import InputError, SequenceFormatError
 from ..types import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import read_depth_png

@@ -12,7 +12,7 @@ Three on-disk forms are recognised by :func:`load_depth_anything`:
   renamed to transformers' layout (:mod:`.original_checkpoint`) and loaded strictly.
 
 Every path verifies that each parameter came from the file (no missing, unexpected or
-mis-shaped keys) and raises :class:`~vio_depth.errors.InputError` naming the file
+mis-shaped keys) and raises :class:`~vio_core.errors.InputError` naming the file
 otherwise. Nothing is ever downloaded: the hub is never contacted.
 
 :meth:`DepthAnythingModel.predict` returns Depth Anything's **relative disparity**
@@ -21,7 +21,7 @@ otherwise. Nothing is ever downloaded: the hub is never contacted.
 exactly what :mod:`vio_depth.rescale` fits. It is *not* metric and not depth.
 
 torch, transformers and onnxruntime are imported lazily; a missing one raises
-:class:`~vio_depth.errors.MissingDependencyError` naming the extra to install
+:class:`~vio_core.errors.MissingDependencyError` naming the extra to install
 (``models`` for transformers / onnxruntime, ``learned`` for torch).
 """
 
@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import check_image
+from vio_core.checks import check_image
 from ..disparity import check_disparity
-from ..errors import InputError, MissingDependencyError, UnknownNameError
+from vio_core.errors import InputError, MissingDependencyError, UnknownNameError
 from ..types import Frame
 from .original_checkpoint import (
     DepthAnythingArchitecture,

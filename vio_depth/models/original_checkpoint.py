@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
-from ..errors import InputError, MissingDependencyError, UnknownNameError
+from vio_core.errors import InputError, MissingDependencyError, UnknownNameError
 
 #: version of the original release -> file-name pattern of its official checkpoints
 _VERSION_FILE_PATTERNS = {

@@ -18,8 +18,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..checks import check_array, check_image
-from ..errors import InputError, ShapeError
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError, ShapeError
 
 #: DINOv2 patch size: every network input side is a multiple of this
 PATCH_SIZE = 14

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import VioDepthError
+from vio_core.errors import VioDepthError
 from .generate import generate_sample, sample_names, write_checksums
 
 

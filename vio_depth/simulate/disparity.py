@@ -39,8 +39,8 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from ..checks import check_array
-from ..errors import InputError, lookup
+from vio_core.checks import check_array
+from vio_core.errors import InputError, lookup
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_array
-from ..errors import InputError, lookup
-from ..geometry import invert_transform, make_transform
+from vio_core.camera import Camera
+from vio_core.checks import check_array
+from vio_core.errors import InputError, lookup
+from vio_core.geometry import invert_transform, make_transform
 from ..io.native import NativeSequenceWriter, simulated_disparity
 from .disparity import disparity_preset
 from .imu import GRAVITY_W, ImuNoise, simulate_imu

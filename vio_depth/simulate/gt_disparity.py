@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import check_array
-from ..errors import InputError, UnknownNameError
+from vio_core.checks import check_array
+from vio_core.errors import InputError, UnknownNameError
 from ..types import Frame
 from .disparity import DisparitySimulation, SimulatedDisparity, disparity_preset, simulate_disparity
 

@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..checks import check_array, check_transform
-from ..errors import InputError
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError
 from ..types import ImuData
 from .trajectory import Trajectory
 

@@ -24,9 +24,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_transform
-from ..errors import InputError
+from vio_core.camera import Camera
+from vio_core.checks import check_transform
+from vio_core.errors import InputError
 from .scenes import Scene
 from .textures import sample_texture, sample_trilinear
 

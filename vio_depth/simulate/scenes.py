@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import check_array
-from ..errors import InputError, lookup
+from vio_core.checks import check_array
+from vio_core.errors import InputError, lookup
 from .textures import MipTexture, build_mip_texture, load_photo, photo_tiles
 
 

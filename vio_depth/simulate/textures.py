@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..checks import check_array, check_image
-from ..errors import InputError, MissingDependencyError, UnknownNameError, lookup
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError, MissingDependencyError, UnknownNameError, lookup
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import check_array
-from ..errors import InputError
+from vio_core.checks import check_array
+from vio_core.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vio_depth.errors import InputError, SequenceFormatError, ShapeError
+from vio_core.errors import InputError, SequenceFormatError, ShapeError
 from vio_depth.io.depth_png import encode_depth_uint16, read_depth_png, write_depth_png
 
 

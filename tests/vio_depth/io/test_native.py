@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, SequenceFormatError
+from vio_core.camera import Camera
+from vio_core.errors import InputError, SequenceFormatError
 from vio_depth.io import native, open_sequence
 from vio_depth.io.native import (NativeSequence, NativeSequenceWriter, files_disparity, simulated_disparity,
                                  write_native_sequence)

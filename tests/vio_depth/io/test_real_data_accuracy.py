@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vio_depth.geometry import relative_transform
+from vio_core.geometry import relative_transform
 from vio_depth.point_accuracy import point_depth_errors
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, SequenceFormatError
-from vio_depth.geometry import invert_transform, relative_transform
+from vio_core.camera import Camera
+from vio_core.errors import InputError, SequenceFormatError
+from vio_core.geometry import invert_transform, relative_transform
 from vio_depth.io import open_sequence
 from vio_depth.metrics import depth_reprojection_errors
 from vio_depth.io.sevenscenes import (

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.errors import InputError, SequenceFormatError
+from vio_core.errors import InputError, SequenceFormatError
 from vio_depth.io import open_sequence
 from vio_depth.io.tum import TUM_CAMERAS, TumRgbdSequence, TumSettings, associate_nearest
 from vio_depth.poses import create_pose_source

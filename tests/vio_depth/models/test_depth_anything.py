@@ -16,8 +16,8 @@ import pytest
 torch = pytest.importorskip("torch")
 transformers = pytest.importorskip("transformers")
 
-from vio_depth.camera import Camera  # noqa: E402
-from vio_depth.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError  # noqa: E402
+from vio_core.camera import Camera  # noqa: E402
+from vio_core.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError  # noqa: E402
 from vio_depth.models import (  # noqa: E402
     ARCHITECTURES,
     DepthAnythingArchitecture,

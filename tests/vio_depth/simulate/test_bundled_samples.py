@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vio_depth.geometry import invert_transform, transform_points
+from vio_core.geometry import invert_transform, transform_points
 from vio_depth.io import open_sequence
 from vio_depth.simulate.generate import camera_poses, sample_spec
 from vio_depth.simulate.imu import ideal_imu

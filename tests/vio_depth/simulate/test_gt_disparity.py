@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, ShapeError, UnknownNameError
+from vio_core.camera import Camera
+from vio_core.errors import InputError, ShapeError, UnknownNameError
 from vio_depth.simulate.disparity import disparity_preset
 from vio_depth.simulate.gt_disparity import (FILL_METHODS, GroundTruthSimulatedDisparity, GtDisparitySettings,
                                              convex_hull_mask, densify_depth, simulate_gt_disparity)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from vio_depth.errors import InputError, UnknownNameError
+from vio_core.errors import InputError, UnknownNameError
 from vio_depth.simulate.disparity import (DisparitySimulation, disparity_preset, disparity_presets,
                                           simulate_disparity)
 

@@ -6,8 +6,8 @@ import hashlib
 import numpy as np
 import pytest
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, UnknownNameError
+from vio_core.camera import Camera
+from vio_core.errors import InputError, UnknownNameError
 from vio_depth.io.native import NativeSequence
 from vio_depth.simulate.__main__ import main
 from vio_depth.simulate.generate import camera_poses, generate_sample, sample_names, sample_spec

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vio_depth.geometry import rotation_angle_deg
+from vio_core.geometry import rotation_angle_deg
 from vio_depth.simulate.generate import room_trajectory, street_trajectory
 from vio_depth.simulate.imu import ImuNoise, ideal_imu, integrate_imu, simulate_imu
 from vio_depth.simulate.trajectory import Sinusoids, SinusoidTrajectory

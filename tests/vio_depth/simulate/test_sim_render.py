@@ -5,9 +5,9 @@ import pytest
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from vio_depth.camera import Camera
-from vio_depth.errors import InputError, UnknownNameError
-from vio_depth.geometry import invert_transform, transform_points
+from vio_core.camera import Camera
+from vio_core.errors import InputError, UnknownNameError
+from vio_core.geometry import invert_transform, transform_points
 from vio_depth.simulate.render import RenderSettings, render_depth, render_view
 from vio_depth.simulate.scenes import build_scene, tiny_scene
 from vio_depth.simulate.textures import build_mip_texture, make_tileable, sample_texture, sample_trilinear

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_depth.camera import Camera
-from vio_depth.checks import check_array, check_transform
-from vio_depth.errors import InputError, ShapeError, VioDepthError
-from vio_depth.geometry import (
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError, ShapeError, VioDepthError
+from vio_core.geometry import (
     invert_transform,
     make_transform,
     relative_transform,
@@ -75,7 +75,7 @@ def test_camera_rejects_bad_intrinsics():
 
 
 def test_lookup_returns_the_entry_or_lists_valid_names():
-    from vio_depth.errors import UnknownNameError, lookup
+    from vio_core.errors import UnknownNameError, lookup
 
     table = {"b": 2, "a": 1}
     assert lookup("thing", "a", table) == 1

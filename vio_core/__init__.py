@@ -1,0 +1,51 @@
+"""Shared primitives of every vio-depth layer: errors, array checks, the camera model, rigid transforms.
+
+The lowest layer: ``matchers``, ``triangulation`` and ``vio_depth`` import from here, and
+this package imports none of them (tests/test_layering.py checks it).
+"""
+
+from .camera import Camera
+from .checks import check_array, check_image, check_transform
+from .errors import (
+    InputError,
+    MissingDependencyError,
+    SequenceFormatError,
+    SettingsError,
+    ShapeError,
+    UnknownNameError,
+    VioDepthError,
+    lookup,
+)
+from .geometry import (
+    invert_transform,
+    make_transform,
+    relative_transform,
+    rotation_angle_deg,
+    skew,
+    transform_from_tum,
+    transform_points,
+    transform_to_tum,
+)
+
+__all__ = [
+    "Camera",
+    "InputError",
+    "MissingDependencyError",
+    "SequenceFormatError",
+    "SettingsError",
+    "ShapeError",
+    "UnknownNameError",
+    "VioDepthError",
+    "check_array",
+    "check_image",
+    "check_transform",
+    "invert_transform",
+    "lookup",
+    "make_transform",
+    "relative_transform",
+    "rotation_angle_deg",
+    "skew",
+    "transform_from_tum",
+    "transform_points",
+    "transform_to_tum",
+]
