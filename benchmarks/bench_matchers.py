@@ -21,7 +21,7 @@ room      sample_sequences/room (SIMULATED scene)       indoor     the sample's 
 ========  ===========================================  =========  =====================  =========
 
 KITTI-tiny and 7-Scenes carry no disparity maps: their disparity is SIMULATED from the
-densified ground truth by :class:`vio_depth.simulate.gt_disparity.GroundTruthSimulatedDisparity`
+densified ground truth by :class:`vio_depth.disparity.SimulatedDisparitySource` (``--disparity simulated``)
 (seed 0, default settings). The dense delta1 / AbsRel columns are therefore SIMULATED on
 every dataset: they measure how well each matcher's points recover the per-frame scale
 and shift, not Depth Anything's accuracy.
@@ -42,14 +42,14 @@ per current keypoint (its most certain depth); "pair" is one (frame, keyframe) m
   keypoints: what the robust fit gets); ``total`` their sum over the frames;
 * ``vs sift``: ``total`` divided by SIFT's on the same dataset in the same run;
 * ``pt err``: median over all evaluated points of ``|z - z_gt| / z_gt``
-  (:func:`vio_depth.point_accuracy.point_depth_errors`, reference = median of the valid
+  (:func:`vio_depth.evaluation.point_depth_errors`, reference = median of the valid
   ground truth in a 5 x 5 window, same on every dataset); ``bias`` the median of the signed
   ``(z - z_gt) / z_gt``; ``n eval`` how many points had a reference (the merged points the
   pipeline sampled a disparity for; points without ground truth in their window are not
   counted); a second table splits ``pt err`` by ground-truth depth (bins at 1/8, 1/4 and
   1/2 of the dataset's max depth);
 * ``delta1``, ``AbsRel``: dense rescaled depth against the ground truth, frame-averaged
-  (:func:`vio_depth.metrics.compute_metrics`, depths in [1e-3, max depth]) over the
+  (:func:`vio_depth.evaluation.compute_metrics`, depths in [1e-3, max depth]) over the
   ``frames eval`` frames that got metric depth. The ``oracle`` line under each table is the
   least-squares fit of the same SIMULATED disparity to the ground truth on every processed
   frame: the floor any rescaling of that disparity can reach.
@@ -95,7 +95,7 @@ class BenchDataset:
         path: sequence folder.
         pairing: pairing preset name (``vio_depth.keyframes.PAIRING_PRESETS``).
         disparity: "sequence" (the sequence's own, SIMULATED for the samples) or
-            "gt_simulated" (:class:`GroundTruthSimulatedDisparity` from the ground truth).
+            "gt_simulated" (SIMULATED from the densified ground truth, ``--disparity simulated``).
         max_depth: metres, upper bound of the dense evaluation.
         start, stop, step: frame indices ``range(start, stop, step)`` (stop None = all).
         label: what the data are, printed with the table.
@@ -218,13 +218,10 @@ class MatcherRow:
         return total / self.pairs if self.pairs else float("nan")
 
 
-def _disparity_source(ds: BenchDataset, sequence):
-    from vio_depth.disparity import SequenceDisparity
-    from vio_depth.simulate.gt_disparity import GroundTruthSimulatedDisparity
+def _disparity_settings(ds: BenchDataset):
+    from vio_depth.disparity import DisparitySettings
 
-    if ds.disparity == "gt_simulated":
-        return GroundTruthSimulatedDisparity(seed=0)
-    return SequenceDisparity(sequence)
+    return DisparitySettings(source="simulated" if ds.disparity == "gt_simulated" else "sequence")
 
 
 def run_one(ds: BenchDataset, sequence, indices: list[int], matcher: str, device: str,
@@ -233,18 +230,18 @@ def run_one(ds: BenchDataset, sequence, indices: list[int], matcher: str, device
 
     ``oracle``: when given, filled with the oracle-fit metrics of each processed frame.
     """
-    from vio_depth.keyframes import pairing_preset
-    from vio_depth.metrics import compute_metrics, oracle_fit
-    from vio_depth.pipeline import Pipeline, PipelineSettings
-    from vio_depth.point_accuracy import point_depth_errors
-    from vio_depth.poses import GroundTruthPoses
-    from vio_depth.rescale import RescalerSettings, metric_depth
+    from dataclasses import replace
 
-    settings = PipelineSettings(matcher=matcher, device=device, pairing=pairing_preset(ds.pairing),
-                                rescaler=RescalerSettings.default(seed=0, temporal=True))
-    pipeline = Pipeline(settings, GroundTruthPoses(), _disparity_source(ds, sequence))
-    timed = TimedMatcher(pipeline.matcher)
-    pipeline.matcher = timed
+    from matchers import create_matcher
+    from vio_depth.evaluation.metrics import compute_metrics, oracle_fit
+    from vio_depth.evaluation.point_accuracy import point_depth_errors
+    from vio_depth.pipeline import Pipeline, PipelineSettings
+    from vio_depth.rescale import metric_depth
+
+    settings = PipelineSettings.from_presets(matcher=matcher, pairing=ds.pairing)
+    settings = replace(settings, disparity=_disparity_settings(ds))
+    timed = TimedMatcher(create_matcher(settings.matcher, device=device))
+    pipeline = Pipeline(settings, sequence=sequence, matcher=timed)
     row = MatcherRow(matcher)
     t_start = time.perf_counter()
     for i in indices:
@@ -253,12 +250,12 @@ def run_one(ds: BenchDataset, sequence, indices: list[int], matcher: str, device
         row.frames += 1
         row.statuses[res.status.value] = row.statuses.get(res.status.value, 0) + 1
         gt = frame.gt_depth()
-        if res.partner is not None:
-            counts = res.extra.get("point_status", {})
-            row.matches += int(res.matches)
+        if res.points.partners:
+            counts = res.points.point_status
+            row.matches += int(res.points.matches)
             row.epipolar_ok += int(sum(counts.values())) - int(counts.get("epipolar", 0))
             row.valid += int(counts.get("valid", 0))
-            row.points.append(int(res.triangulated))
+            row.points.append(int(len(res.points.depth)))
         if gt is None:
             continue
         if res.points_uv is not None and len(res.points_uv):
@@ -292,7 +289,7 @@ def _fmt(x: float, spec: str) -> str:
 
 def format_table(ds: BenchDataset, rows: list[MatcherRow], oracle: dict) -> str:
     """Markdown table of one dataset (see the module docstring for the columns)."""
-    from vio_depth.metrics import average_metrics
+    from vio_depth.evaluation.metrics import average_metrics
 
     base = next((r for r in rows if r.matcher == BASELINE), None)
     head = ("| matcher | extract s/frame | match s/pair | pairs | matches | epi ok | valid | points/frame | total | "
@@ -363,7 +360,6 @@ def machine_line(device: str) -> str:
 
 def main(argv=None) -> int:
     from matchers import available_matchers
-
     from vio_core.errors import UnknownNameError
     from vio_depth.io import open_sequence
 

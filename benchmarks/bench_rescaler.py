@@ -172,23 +172,25 @@ def check(cells: list[Cell], min_speedup: float) -> list[str]:
 def run_sequence(path: str, points: str, depth_noise: float, outliers: float, max_depth: float,
                  seed: int) -> None:
     """The temporal-filter report on one sequence (see the module docstring)."""
-    from vio_depth.io.base import open_sequence
-    from vio_depth.metrics import average_metrics, compute_metrics
-    from vio_depth.reference_points import parse_points_spec
+    from vio_depth.disparity import DisparitySettings, create_disparity_source
+    from vio_depth.evaluation.metrics import average_metrics, compute_metrics
+    from vio_depth.evaluation.reference_points import parse_points_spec
+    from vio_depth.io import open_sequence
     from vio_depth.rescale import Rescaler, RescalerSettings, sample_bilinear
 
     sequence = open_sequence(path)
-    spec = parse_points_spec(points)
+    disparity_of = create_disparity_source(DisparitySettings(), sequence)
+    spec = parse_points_spec(points, seed=seed)
     rng = np.random.default_rng(seed)
     rescalers = {"per_frame": Rescaler(RescalerSettings(temporal=None)), "streaming": Rescaler(RescalerSettings())}
     medians = {k: [] for k in rescalers}
     metrics = {k: [] for k in rescalers}
     gated = 0
     for frame in sequence:
-        gt, disparity = frame.gt_depth(), frame.disparity()
+        gt, disparity = frame.gt_depth(), disparity_of(frame)
         if gt is None or disparity is None:
             continue
-        uv, depth = spec.sample(gt, seed=seed + frame.index)
+        uv, depth = spec.sample(gt, frame.index)
         depth = depth * (1.0 + depth_noise * rng.standard_normal(len(depth)))
         n_out = int(round(outliers * len(depth)))
         out = rng.permutation(len(depth))[:n_out]
@@ -196,7 +198,7 @@ def run_sequence(path: str, points: str, depth_noise: float, outliers: float, ma
         d, inside = sample_bilinear(disparity, uv)
         for name, rescaler in rescalers.items():
             res = rescaler.update(d[inside], depth[inside], disparity_map=disparity)
-            if res.filtered is not None and res.status.value == "ok" and not res.filtered.accepted:
+            if res.filtered is not None and res.source.value == "frame" and not res.filtered.accepted:
                 gated += 1
             pred = res.metric_depth(disparity)
             if pred is None:

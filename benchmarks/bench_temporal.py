@@ -7,7 +7,7 @@ flicker = RMS of (e_t - e_{t-1}) over consecutive evaluated frames. The bundled 
 are static scenes (nothing moves but the camera), so every stretch is a static-scene
 stretch; ``--frames A:B`` restricts the evaluation to a slice.
 
-The baseline is the same pipeline with the filter off (``RescalerSettings.default(temporal=False)``),
+The baseline is the same pipeline with the filter off (rescaler preset ``per_frame``),
 on the same frames, matches and points (identical seeds).
 
     python benchmarks/bench_temporal.py                       # street + room samples
@@ -30,19 +30,16 @@ SAMPLES = {"street": ("kitti", 80.0), "room": ("indoor", 10.0)}
 
 
 def run(sequence_name: str, temporal: bool, frames: slice, seed: int) -> dict:
-    from vio_depth.disparity import SequenceDisparity
+    from vio_core.settings import override
+    from vio_depth.evaluation.metrics import average_metrics, compute_metrics
     from vio_depth.io import open_sequence
-    from vio_depth.keyframes import pairing_preset
-    from vio_depth.metrics import average_metrics, compute_metrics
     from vio_depth.pipeline import Pipeline, PipelineSettings
-    from vio_depth.poses import create_pose_source
-    from vio_depth.rescale import RescalerSettings
 
     pairing, max_depth = SAMPLES[sequence_name]
     seq = open_sequence(ROOT / "sample_sequences" / sequence_name)
-    settings = PipelineSettings(pairing=pairing_preset(pairing),
-                                rescaler=RescalerSettings.default(seed=seed, temporal=temporal))
-    pipe = Pipeline(settings, create_pose_source("gt", seq), SequenceDisparity(seq))
+    settings = PipelineSettings.from_presets(pairing=pairing, rescaler="streaming" if temporal else "per_frame")
+    settings = override(settings, {"rescaler": {"ransac": {"seed": seed}}})
+    pipe = Pipeline(settings, sequence=seq)
     stop = len(seq) if frames.stop is None else min(frames.stop, len(seq))
     start = frames.start or 0
     errors, metrics = [], []

@@ -1,6 +1,42 @@
-"""Feature extraction and matching: OpenCV SIFT and learned matchers through kornia."""
+"""Feature extraction and matching: OpenCV SIFT and learned matchers through kornia.
+
+A leaf layer: it imports only :mod:`vio_core` (and numpy, OpenCV; torch/kornia lazily).
+
+=====================  ======================================================================
+module                 job
+=====================  ======================================================================
+``base``               :class:`Features`, :class:`Matches`, the :class:`Matcher` protocol
+``sift``               :class:`SiftMatcher`, :class:`SiftSettings`
+``learned_settings``   :class:`LearnedMatcherSettings`
+``learned``            :class:`LearnedMatcher` (kornia, bundled weights)
+``weights``            locating and loading the bundled weights offline
+``registry``           :data:`MATCHER_PRESETS`, :func:`create_matcher`
+=====================  ======================================================================
+"""
 
 from .base import Features, Matcher, Matches
-from .registry import available_matchers, create_matcher, register_matcher
+from .learned_settings import LearnedMatcherSettings
+from .registry import (
+    MATCHER_PRESETS,
+    MatcherSettings,
+    available_matchers,
+    create_matcher,
+    register_matcher,
+    uses_device,
+)
+from .sift import SiftMatcher, SiftSettings
 
-__all__ = ["Features", "Matcher", "Matches", "available_matchers", "create_matcher", "register_matcher"]
+__all__ = [
+    "MATCHER_PRESETS",
+    "Features",
+    "LearnedMatcherSettings",
+    "Matcher",
+    "MatcherSettings",
+    "Matches",
+    "SiftMatcher",
+    "SiftSettings",
+    "available_matchers",
+    "create_matcher",
+    "register_matcher",
+    "uses_device",
+]

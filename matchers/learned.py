@@ -1,6 +1,6 @@
 """Learned matchers through kornia, fully offline: DISK/ALIKED + LightGlue, XFeat + LighterGlue.
 
-Presets (names of the matcher registry, see :data:`PRESETS` for their settings):
+Presets (names of the matcher registry, see :data:`matchers.MATCHER_PRESETS` for their settings):
 
 ============================  ===================================  =============================
 name                          features (kornia module, weights)    matcher (weights)
@@ -56,12 +56,14 @@ import re
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 
 from vio_core.checks import check_array, check_image
-from vio_core.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError, lookup
+from vio_core.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError
 
 from .base import Features, Matches
+from .learned_settings import LearnedMatcherSettings
 from .weights import BundledWeights, load_bundled
 
 # --------------------------------------------------------------------------------------
@@ -148,56 +150,6 @@ def _import_learned_deps(purpose: str):
     except ImportError as exc:
         raise MissingDependencyError("kornia", "learned", purpose) from exc
     return torch
-
-
-# --------------------------------------------------------------------------------------
-# Settings and presets
-# --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LearnedMatcherSettings:
-    """Settings of one learned matcher (see :data:`PRESETS` for the named defaults).
-
-    Attributes:
-        extractor: feature network, a key of the extractor table: ``"disk"``, ``"aliked"``
-            or ``"xfeat"``; it also fixes the LightGlue weights.
-        max_side: pixels; images are downscaled so that their longest side is at most this
-            before extraction (never upscaled). Defaults: 1024 for DISK and ALIKED, 640 for XFeat.
-        max_keypoints: at most this many keypoints per image (the strongest). Default 2048.
-        detection_threshold: the extractor's own detection threshold: DISK heatmap logit
-            (default 0.0), ALIKED score in (0, 1) (default 0.2; at most ``max_keypoints``
-            maxima above it are kept), XFeat heatmap value (default 0.05).
-        filter_threshold: LightGlue match probability a match must exceed, in [0, 1)
-            (default 0.1, LightGlue's).
-        depth_confidence: LightGlue early stopping (-1 disables); None keeps the value of
-            kornia's LightGlue configuration for these features.
-        width_confidence: LightGlue point pruning (-1 disables); None keeps kornia's value.
-        device: ``"cpu"``, ``"cuda"`` or ``"cuda:<i>"``; None picks cuda when available.
-    """
-
-    extractor: str
-    max_side: int = 1024
-    max_keypoints: int = 2048
-    detection_threshold: float = 0.0
-    filter_threshold: float = 0.1
-    depth_confidence: float | None = None
-    width_confidence: float | None = None
-    device: str | None = None
-
-    def __post_init__(self):
-        if self.extractor not in _EXTRACTORS:
-            raise UnknownNameError("extractor", self.extractor, _EXTRACTORS)
-        if self.max_side < 32:
-            raise InputError(f"max_side must be at least 32 pixels, got {self.max_side}")
-        if self.max_keypoints < 1:
-            raise InputError(f"max_keypoints must be at least 1, got {self.max_keypoints}")
-        if not 0.0 <= self.filter_threshold < 1.0:
-            raise InputError(f"filter_threshold must be in [0, 1), got {self.filter_threshold}")
-        for name in ("depth_confidence", "width_confidence"):
-            value = getattr(self, name)
-            if value is not None and value != -1 and not 0.0 < value <= 1.0:
-                raise InputError(f"{name} must be None, -1 or in (0, 1], got {value}")
 
 
 @dataclass(frozen=True)
@@ -297,23 +249,6 @@ _EXTRACTORS: dict[str, _ExtractorSpec] = {
     ),
 }
 
-#: Named presets; the keys are the matcher registry's names.
-PRESETS: dict[str, LearnedMatcherSettings] = {
-    "disk+lightglue": LearnedMatcherSettings(extractor="disk", max_side=1024, detection_threshold=0.0),
-    "aliked+lightglue": LearnedMatcherSettings(extractor="aliked", max_side=1024, detection_threshold=0.2),
-    "xfeat+lighterglue": LearnedMatcherSettings(extractor="xfeat", max_side=640, detection_threshold=0.05),
-}
-
-
-def learned_settings(name: str, **overrides) -> LearnedMatcherSettings:
-    """Settings of preset ``name`` with ``overrides`` (field names of LearnedMatcherSettings).
-
-    Raises:
-        UnknownNameError: unknown preset name (the message lists the valid ones).
-    """
-    return replace(lookup("learned matcher", name, PRESETS), **overrides)
-
-
 def lightglue_config(settings: LearnedMatcherSettings) -> dict:
     """Keyword configuration of kornia's ``LightGlue(None, **config)`` for these settings.
 
@@ -379,7 +314,6 @@ class LearnedMatcher:
     """A feature network + LightGlue pair (implements :class:`matchers.base.Matcher`).
 
     Args:
-        name: preset name, used as ``self.name`` and stamped into the features' payload.
         settings: see :class:`LearnedMatcherSettings`; ``settings.device`` None picks cuda
             when available.
 
@@ -388,10 +322,11 @@ class LearnedMatcher:
         InputError: an unavailable device.
     """
 
-    def __init__(self, name: str, settings: LearnedMatcherSettings):
-        purpose = f"the learned matcher {name!r}"
+    def __init__(self, settings: LearnedMatcherSettings):
+        #: the registry name, stamped into the features' payload
+        self.name = settings.name
+        purpose = f"the learned matcher {self.name!r}"
         self._torch = _import_learned_deps(purpose)
-        self.name = name
         self.device = resolve_device(settings.device)
         self.settings = replace(settings, device=self.device)
         self._spec = _EXTRACTORS[settings.extractor]
@@ -416,8 +351,6 @@ class LearnedMatcher:
         height, width = img.shape[:2]
         w, h = resized_size(width, height, self.settings.max_side, self._spec.size_multiple)
         if (w, h) != (width, height):
-            import cv2
-
             img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         with torch.inference_mode():
             x = torch.from_numpy(np.ascontiguousarray(img)).to(self.device)
@@ -472,31 +405,3 @@ class LearnedMatcher:
             idx_b=pairs[:, 1].astype(np.int64),
             confidence=confidence.astype(np.float32),
         )
-
-
-# --------------------------------------------------------------------------------------
-# Registry factories: (device) -> Matcher
-# --------------------------------------------------------------------------------------
-
-
-def create_learned_matcher(name: str, device: str | None = None, **overrides) -> LearnedMatcher:
-    """Learned matcher of preset ``name`` on ``device`` (None = cuda when available).
-
-    ``overrides`` are :class:`LearnedMatcherSettings` fields, e.g. ``max_side=512``.
-    """
-    return LearnedMatcher(name, learned_settings(name, device=device, **overrides))
-
-
-def create_disk_lightglue(device: str | None = None, **overrides) -> LearnedMatcher:
-    """DISK (depth weights) + LightGlue; see :data:`PRESETS` ``"disk+lightglue"``."""
-    return create_learned_matcher("disk+lightglue", device, **overrides)
-
-
-def create_aliked_lightglue(device: str | None = None, **overrides) -> LearnedMatcher:
-    """ALIKED (aliked-n16) + LightGlue; see :data:`PRESETS` ``"aliked+lightglue"``."""
-    return create_learned_matcher("aliked+lightglue", device, **overrides)
-
-
-def create_xfeat_lighterglue(device: str | None = None, **overrides) -> LearnedMatcher:
-    """XFeat + LighterGlue; see :data:`PRESETS` ``"xfeat+lighterglue"``."""
-    return create_learned_matcher("xfeat+lighterglue", device, **overrides)

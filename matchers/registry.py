@@ -1,60 +1,87 @@
 """One registry of matcher presets, chosen by name on the CLI and in the API.
 
-Entries are ``"module:factory"`` strings so that listing or choosing ``"sift"`` never
-imports torch or kornia; a learned preset imports them only when it is created.
+A preset is a settings object (:class:`~matchers.sift.SiftSettings` or
+:class:`~matchers.learned_settings.LearnedMatcherSettings`); :func:`create_matcher` builds
+the matcher for a settings object or a preset name. Neither listing nor choosing a preset
+imports torch or kornia; building a learned matcher does.
 """
 
 from __future__ import annotations
 
-import importlib
+from dataclasses import replace
 from typing import Callable
 
-from vio_core.errors import lookup
+from vio_core.errors import SettingsError
+from vio_core.settings import Presets
 
 from .base import Matcher
+from .learned import LearnedMatcher
+from .learned_settings import LearnedMatcherSettings
+from .sift import SiftMatcher, SiftSettings
 
-# name -> "module:callable"; the callable takes (device: str | None) and returns a Matcher.
-_PRESETS: dict[str, str] = {
-    "sift": "matchers.sift:create_sift",
-    "disk+lightglue": "matchers.learned:create_disk_lightglue",
-    "aliked+lightglue": "matchers.learned:create_aliked_lightglue",
-    "xfeat+lighterglue": "matchers.learned:create_xfeat_lighterglue",
+MatcherSettings = SiftSettings | LearnedMatcherSettings
+
+#: Named matcher presets (``--matcher``).
+MATCHER_PRESETS: Presets = Presets("matcher", {
+    "sift": SiftSettings(),
+    "disk+lightglue": LearnedMatcherSettings(extractor="disk", max_side=1024, detection_threshold=0.0),
+    "aliked+lightglue": LearnedMatcherSettings(extractor="aliked", max_side=1024, detection_threshold=0.2),
+    "xfeat+lighterglue": LearnedMatcherSettings(extractor="xfeat", max_side=640, detection_threshold=0.05),
+}, default="sift", descriptions={
+    "sift": "OpenCV SIFT, RootSIFT, two-way ratio test + mutual nearest neighbour (CPU)",
+    "disk+lightglue": "DISK + LightGlue (kornia, bundled weights)",
+    "aliked+lightglue": "ALIKED + LightGlue (kornia, bundled weights)",
+    "xfeat+lighterglue": "XFeat + LighterGlue (kornia, bundled weights)",
+})
+
+# settings type -> factory(settings) -> Matcher
+_FACTORIES: dict[type, Callable[..., Matcher]] = {
+    SiftSettings: SiftMatcher,
+    LearnedMatcherSettings: LearnedMatcher,
 }
 
 
-def register_matcher(name: str, target: str | Callable[..., Matcher]) -> None:
-    """Register a preset: ``target`` is a factory or a lazy ``"module:callable"`` string."""
-    _PRESETS[name] = target
+def register_matcher(name: str, settings, factory: Callable[..., Matcher] | None = None) -> None:
+    """Add preset ``name``; a new settings type needs its ``factory(settings) -> Matcher``."""
+    if factory is not None:
+        _FACTORIES[type(settings)] = factory
+    elif type(settings) not in _FACTORIES:
+        raise SettingsError(f"matcher preset {name!r}: no factory for {type(settings).__name__}")
+    MATCHER_PRESETS.add(name, settings)
 
 
 def available_matchers() -> list[str]:
     """Names of all registered presets (learned ones may still need their extras)."""
-    return sorted(_PRESETS)
+    return sorted(MATCHER_PRESETS)
 
 
-def create_matcher(name: str, device: str | None = None) -> Matcher:
-    """Instantiate preset ``name``.
+def uses_device(settings) -> bool:
+    """Whether the matcher for ``settings`` runs on a selectable device (learned matchers)."""
+    return hasattr(settings, "device")
+
+
+def create_matcher(settings: "MatcherSettings | str", device: str | None = None) -> Matcher:
+    """Build the matcher for ``settings`` (a settings object or a preset name).
 
     Args:
-        name: a name from :func:`available_matchers`.
-        device: "cpu" or "cuda" for learned matchers (None = cuda when available);
-            ignored by SIFT.
+        settings: e.g. ``SiftSettings(ratio=0.7)`` or ``"disk+lightglue"``.
+        device: "cpu" / "cuda" for matchers that have a device (None = the settings' own);
+            a matcher without one (SIFT) refuses any device but "cpu".
 
     Raises:
         UnknownNameError (a ValueError): unknown name; the message lists valid names.
+        SettingsError: a device for a matcher that has none.
         MissingDependencyError: a learned preset whose extra is not installed.
     """
-    target = lookup("matcher", name, _PRESETS)
-    if isinstance(target, str):
-        module, attr = target.split(":")
-        target = getattr(importlib.import_module(module), attr)
-    return target(device=device) if _accepts_device(target) else target()
-
-
-def _accepts_device(factory) -> bool:
-    import inspect
-
-    try:
-        return "device" in inspect.signature(factory).parameters
-    except (TypeError, ValueError):
-        return False
+    if isinstance(settings, str):
+        settings = MATCHER_PRESETS[settings]
+    if device is not None:
+        if uses_device(settings):
+            settings = replace(settings, device=device)
+        elif device != "cpu":
+            raise SettingsError(f"device {device!r} does not apply to the {type(settings).__name__} matcher "
+                                "(it runs on the CPU)")
+    factory = _FACTORIES.get(type(settings))
+    if factory is None:
+        raise SettingsError(f"no matcher for settings of type {type(settings).__name__}")
+    return factory(settings)

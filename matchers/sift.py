@@ -27,10 +27,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from vio_core.checks import check_array, check_image
-from vio_core.errors import InputError, ShapeError
+from vio_core.errors import InputError, SettingsError, ShapeError
 
 from .base import Features, Matches
 
@@ -71,13 +72,13 @@ class SiftSettings:
 
     def __post_init__(self):
         if self.max_features <= 0:
-            raise InputError(f"sift: max_features must be positive, got {self.max_features}")
+            raise SettingsError(f"sift: max_features must be positive, got {self.max_features}")
         if not 0.0 < self.ratio <= 1.0:
-            raise InputError(f"sift: ratio must be in (0, 1], got {self.ratio}")
+            raise SettingsError(f"sift: ratio must be in (0, 1], got {self.ratio}")
         if self.contrast_threshold < 0 or self.edge_threshold <= 0 or self.sigma <= 0:
-            raise InputError("sift: contrast_threshold >= 0, edge_threshold > 0 and sigma > 0 are required")
+            raise SettingsError("sift: contrast_threshold >= 0, edge_threshold > 0 and sigma > 0 are required")
         if self.n_octave_layers < 1 or self.block_rows < 1:
-            raise InputError("sift: n_octave_layers and block_rows must be >= 1")
+            raise SettingsError("sift: n_octave_layers and block_rows must be >= 1")
 
 
 def normalize_descriptors(descriptors, root_sift: bool = True) -> np.ndarray:
@@ -178,8 +179,6 @@ class SiftMatcher:
 
     def _detector(self):
         if self._sift is None:
-            import cv2
-
             s = self.settings
             self._sift = cv2.SIFT_create(
                 nfeatures=s.max_features,
@@ -197,8 +196,6 @@ class SiftMatcher:
         pixels, ``descriptors (N, 128) float32`` unit-L2 (RootSIFT unless disabled),
         ``scores (N,) float32`` detector responses. N may be 0 (textureless image).
         """
-        import cv2
-
         img = check_image("image", image, channels=3)
         if img.dtype != np.uint8:
             raise ShapeError(f"image: expected uint8 RGB, got dtype {img.dtype}")
@@ -219,8 +216,3 @@ class SiftMatcher:
                 raise ShapeError(f"{nm}: expected (N, {SIFT_DIM}) SIFT descriptors, got {f.descriptors.shape}")
         s = self.settings
         return ratio_match(feats_a.descriptors, feats_b.descriptors, s.ratio, s.mutual, s.block_rows)
-
-
-def create_sift(device: str | None = None) -> SiftMatcher:
-    """Registry factory for ``"sift"`` (default settings; ``device`` is ignored, CPU only)."""
-    return SiftMatcher(SiftSettings())

@@ -1,6 +1,10 @@
-"""Two-view triangulation of matched keypoints with a known metric relative pose."""
+"""Two-view triangulation of matched keypoints with a known metric relative pose.
+
+A leaf layer: it imports only :mod:`vio_core` (and numpy, scipy).
+"""
 
 from .triangulate import (
+    TRIANGULATION_PRESETS,
     PointStatus,
     TriangulatedPoints,
     TriangulationSettings,
@@ -11,6 +15,7 @@ from .triangulate import (
 )
 
 __all__ = [
+    "TRIANGULATION_PRESETS",
     "PointStatus",
     "TriangulatedPoints",
     "TriangulationSettings",

@@ -52,10 +52,12 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
-from vio_core.errors import InputError
+from vio_core.errors import InputError, SettingsError
+from vio_core.settings import Presets
 
 #: baseline (metres) below which a pose is treated as a pure rotation: nothing can be
 #: triangulated and every point is LOW_PARALLAX
@@ -112,15 +114,23 @@ class TriangulationSettings:
 
     def __post_init__(self):
         if not (self.max_sampson_px > 0 and self.max_reprojection_px > 0):
-            raise InputError("triangulation: max_sampson_px and max_reprojection_px must be positive")
+            raise SettingsError("triangulation: max_sampson_px and max_reprojection_px must be positive")
         if not 0.0 <= self.min_angle_deg < 90.0:
-            raise InputError(f"triangulation: min_angle_deg must be in [0, 90), got {self.min_angle_deg}")
+            raise SettingsError(f"triangulation: min_angle_deg must be in [0, 90), got {self.min_angle_deg}")
         if not 0.0 <= self.min_depth_m < self.max_depth_m:
-            raise InputError(
+            raise SettingsError(
                 f"triangulation: need 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}"
             )
         if not self.pixel_sigma_px >= 0:
-            raise InputError(f"triangulation: pixel_sigma_px must be >= 0, got {self.pixel_sigma_px}")
+            raise SettingsError(f"triangulation: pixel_sigma_px must be >= 0, got {self.pixel_sigma_px}")
+
+
+#: Named triangulation presets (``[triangulation] preset = ...`` in a config file).
+TRIANGULATION_PRESETS: Presets = Presets("triangulation preset", {
+    "default": TriangulationSettings(),
+}, default="default", descriptions={
+    "default": "Sampson 1.5 px, reprojection 2 px, angle 1 deg, depth 0.1-300 m, pixel sigma 1 px",
+})
 
 
 @dataclass(frozen=True)
@@ -320,8 +330,6 @@ def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarr
     First order, ``T * Exp(xi)`` has rotation ``R Exp(w)`` and translation ``t + R rho``
     (the GTSAM ``Pose3`` retraction convention).
     """
-    from scipy.spatial.transform import Rotation
-
     J = np.empty((len(uv_cur), 6))
     for k in range(6):
         z = []
@@ -372,7 +380,7 @@ def triangulate_pair(
     uv_ref = check_array("uv_ref", uv_ref, (n, 2), finite=True).astype(np.float64)
     T = check_transform("T_ref_cur", T_ref_cur)
     if not isinstance(camera_cur, Camera) or not isinstance(camera_ref, Camera):
-        raise InputError("triangulate_pair: camera_cur and camera_ref must be vio_core.camera.Camera")
+        raise InputError("triangulate_pair: camera_cur and camera_ref must be vio_core.Camera")
     if not isinstance(settings, TriangulationSettings):
         raise InputError("triangulate_pair: settings must be a TriangulationSettings")
     conf = np.ones(n) if confidence is None else check_array("confidence", confidence, (n,), finite=True)

@@ -26,9 +26,11 @@ from .geometry import (
     transform_points,
     transform_to_tum,
 )
+from .settings import Presets, override, to_plain, toml_dumps, toml_loads
 
 __all__ = [
     "Camera",
+    "Presets",
     "InputError",
     "MissingDependencyError",
     "SequenceFormatError",
@@ -42,9 +44,13 @@ __all__ = [
     "invert_transform",
     "lookup",
     "make_transform",
+    "override",
     "relative_transform",
     "rotation_angle_deg",
     "skew",
+    "to_plain",
+    "toml_dumps",
+    "toml_loads",
     "transform_from_tum",
     "transform_points",
     "transform_to_tum",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from .checks import check_array
@@ -81,8 +82,6 @@ class Camera:
         uv_raw = check_array("uv_raw", uv_raw, (None, 2))
         if not self.is_distorted or len(uv_raw) == 0:
             return uv_raw.astype(np.float64, copy=True)
-        import cv2
-
         out = cv2.undistortPoints(
             uv_raw.reshape(-1, 1, 2).astype(np.float64),
             self.K,
@@ -98,8 +97,6 @@ class Camera:
         uv = check_array("uv_ideal", uv_ideal, (None, 2))
         if not self.is_distorted or len(uv) == 0:
             return uv.astype(np.float64, copy=True)
-        import cv2
-
         rays = np.stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy, np.ones(len(uv))], 1)
         out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, np.asarray(self.dist))
         return out.reshape(-1, 2)

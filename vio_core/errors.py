@@ -2,7 +2,7 @@
 
 The CLI turns any :class:`VioDepthError` into one line on stderr and exit code 1.
 Failures *inside* the per-frame hot loop are statuses with reasons
-(see :class:`vio_depth.types.FrameStatus`), never exceptions.
+(see :class:`vio_depth.pipeline.FrameStatus`), never exceptions.
 """
 
 from __future__ import annotations
@@ -34,8 +34,9 @@ class SettingsError(VioDepthError, ValueError):
     """A settings value is out of range (e.g. a negative threshold)."""
 
 
-class UnknownNameError(VioDepthError, ValueError):
-    """An unknown preset/registry name. The message lists the valid names."""
+class UnknownNameError(SettingsError):
+    """An unknown preset/registry name (a :class:`SettingsError`, hence a ValueError).
+    The message lists the valid names."""
 
     def __init__(self, kind: str, name: str, valid):
         self.kind = kind

@@ -1,18 +1,76 @@
 """``vio-depth`` command line.
 
-    vio-depth run SEQ --out DIR [--matcher sift] [--max-frames N] [--disparity DIR] ...
+    vio-depth run SEQ --out DIR [--config FILE] [--matcher sift] [--pairing indoor] ...
+    vio-depth config [--config FILE] [settings flags] --dump
     vio-depth presets
 
-Known errors (bad input, unknown names, missing optional packages) print one line on
-stderr and exit with code 1; no traceback, no half-written output file.
+Settings come from, in increasing priority: the defaults, ``--config FILE`` (TOML), the
+flags. Known errors (bad input, unknown names, invalid settings, missing optional packages)
+print one line on stderr and exit with code 1; no traceback, no half-written output file.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
+from dataclasses import replace
 
-from vio_core.errors import VioDepthError
+from matchers import uses_device
+from vio_core.errors import SettingsError, VioDepthError
+from vio_core.settings import override
+
+from ._version import __version__
+from .disparity import DISPARITY_CHOICES, disparity_presets
+from .evaluation import POINT_SPEC_FORMS, parse_points_spec
+from .io import available_formats, open_sequence
+from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
+from .run import RunSettings, dump_config, format_table, load_config, run_sequence
+
+log = logging.getLogger("vio_depth")
+
+
+# --------------------------------------------------------------------------- parser
+def _add_settings_flags(p: argparse.ArgumentParser) -> None:
+    """The flags that shape the settings (shared by ``run`` and ``config``); all default to None."""
+    p.add_argument("--config", default=None, metavar="FILE", help="TOML settings file (see `vio-depth config --dump`)")
+    g = p.add_argument_group("pipeline")
+    g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: sift)")
+    g.add_argument("--device", default=None, choices=["cpu", "cuda"],
+                   help="device of a learned matcher or Depth Anything model (default: cuda when available)")
+    g.add_argument("--poses", default=None, help="pose source: gt (sequence poses) or imu (gtsam preintegration)")
+    g.add_argument("--pairing", default=None,
+                   help="pair-selection preset: kitti (5 deg / 1.5 m, default), ddad (5 deg / 2 m), indoor (5 deg / 0.15 m)")
+    g.add_argument("--min-rotation", type=float, default=None, metavar="DEG", help="override the rotation threshold")
+    g.add_argument("--min-translation", type=float, default=None, metavar="M", help="override the translation threshold")
+    g.add_argument("--rescaler", default=None, help="rescaler preset: streaming (default), per_frame, paper")
+    g.add_argument("--no-temporal", action="store_true", default=None,
+                   help="disable the Kalman filter on (alpha, beta)")
+    g.add_argument("--points", default=None,
+                   help="metric point source: sfm (default), or lidar:N / random:N sampled from ground truth")
+    g.add_argument("--seed", type=int, default=None, help="seed of RANSAC, random reference points and "
+                                                          "the SIMULATED disparity (default 0)")
+    d = p.add_argument_group("disparity")
+    d.add_argument("--disparity", default=None, metavar="SOURCE",
+                   help=f"where the disparity comes from: {', '.join(DISPARITY_CHOICES)} (default: sequence, the "
+                        "sequence's own; simulated SIMULATES one from ground-truth depth, for datasets without "
+                        "Depth Anything predictions)")
+    d.add_argument("--disparity-dir", default=None, metavar="DIR",
+                   help="read DIR/<image stem>.npy (float32 HxW affine-invariant disparity); implies --disparity files")
+    d.add_argument("--model", default=None, metavar="PATH",
+                   help="run Depth Anything V1/V2 (transformers folder, .onnx or original .pth); implies --disparity model")
+    d.add_argument("--model-variant", default=None,
+                   help="for a renamed .pth: vits/vitb/vitl or v1-vitl, v2-vits, ... (see docs/models.md)")
+    d.add_argument("--model-input-size", type=int, default=None, metavar="PX",
+                   help="Depth Anything input size (default 518)")
+    r = p.add_argument_group("run")
+    r.add_argument("--max-frames", type=int, default=None, metavar="N", help="process only the first N frames")
+    r.add_argument("--no-backfill", action="store_true", default=None,
+                   help="streaming behaviour only: no backward pass for the first frames that found no "
+                        "earlier partner (see docs/design.md)")
+    r.add_argument("--uncertainty", action="store_true", default=None,
+                   help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
+    r.add_argument("--max-depth", type=float, default=None, help="depth cap for evaluation, metres (default 80)")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -20,137 +78,154 @@ def _build_parser() -> argparse.ArgumentParser:
         prog="vio-depth",
         description="Metric depth maps from affine-invariant disparity and triangulated metric points.",
     )
+    p.add_argument("--version", action="version", version=f"vio-depth {__version__}")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)")
+    p.add_argument("-q", "--quiet", action="store_true", help="only errors")
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="process a sequence and write metric depth maps")
     r.add_argument("sequence", help="sequence folder (native, KITTI raw drive, 7-Scenes or TUM RGB-D)")
     r.add_argument("--out", required=True, help="output folder (created if missing)")
     r.add_argument("--format", default=None, help="sequence format (default: auto-detect)")
-    r.add_argument("--matcher", default="sift", help="matcher preset (see `vio-depth presets`; default: sift)")
-    r.add_argument("--device", default=None, choices=["cpu", "cuda"],
-                   help="device for learned matchers (default: cuda when available)")
-    r.add_argument("--poses", default="gt", help="pose source: gt (sequence poses) or imu (gtsam preintegration)")
-    r.add_argument("--pairing", default="kitti",
-                   help="pair-selection preset: kitti (5 deg / 1.5 m), ddad (5 deg / 2 m), indoor (5 deg / 0.15 m)")
-    r.add_argument("--min-rotation", type=float, default=None, metavar="DEG", help="override the rotation threshold")
-    r.add_argument("--min-translation", type=float, default=None, metavar="M", help="override the translation threshold")
-    r.add_argument("--points", default="sfm",
-                   help="metric point source: sfm (default), or lidar:N / random:N sampled from ground truth")
-    r.add_argument("--disparity", default=None, metavar="DIR",
-                   help="read DIR/<image stem>.npy (float32 HxW affine-invariant disparity) instead of the "
-                        "sequence's own; the word 'simulated' SIMULATES one from the ground-truth depth "
-                        "(for evaluation on datasets without Depth Anything predictions)")
-    r.add_argument("--model", default=None, metavar="PATH",
-                   help="run Depth Anything V1/V2 (transformers folder, .onnx or original .pth) for the disparity")
-    r.add_argument("--model-variant", default=None,
-                   help="for a renamed .pth: vits/vitb/vitl or v1-vitl, v2-vits, ... (see docs/models.md)")
-    r.add_argument("--model-input-size", type=int, default=518, metavar="PX",
-                   help="Depth Anything input size (default 518)")
-    r.add_argument("--max-frames", type=int, default=None, metavar="N", help="process only the first N frames")
-    r.add_argument("--no-temporal", action="store_true", help="disable the Kalman filter on (alpha, beta)")
-    r.add_argument("--no-backfill", action="store_true",
-                   help="streaming behaviour only: no backward pass for the first frames that found no "
-                        "earlier partner (see docs/design.md)")
-    r.add_argument("--uncertainty", action="store_true",
-                   help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
-    r.add_argument("--max-depth", type=float, default=80.0, help="depth cap for evaluation, metres (default 80)")
-    r.add_argument("--seed", type=int, default=0, help="seed of RANSAC and random reference points")
+    _add_settings_flags(r)
     r.add_argument("--progress", dest="progress", action="store_true", default=None, help="force a progress bar")
     r.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
 
-    sub.add_parser("presets", help="list matcher, pairing, pose-source and format names")
+    c = sub.add_parser("config", help="print the resolved settings (defaults < --config FILE < flags) as TOML")
+    _add_settings_flags(c)
+    c.add_argument("--dump", action="store_true", required=True, help="print the complete settings as TOML")
+
+    sub.add_parser("presets", help="list every preset family and name")
     return p
 
 
+# --------------------------------------------------------------------------- settings
+def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
+    """Defaults, then ``--config``, then the flags given on the command line.
+
+    Raises:
+        SettingsError / UnknownNameError / InputError: an invalid or inapplicable value.
+    """
+    pipeline, run = PipelineSettings(), RunSettings()
+    if args.config:
+        pipeline, run = load_config(args.config)
+    s = pipeline
+    if args.matcher is not None:
+        s = replace(s, matcher=PRESET_FAMILIES["matcher"][args.matcher])
+    if args.poses is not None:
+        s = replace(s, poses=PRESET_FAMILIES["poses"][args.poses])
+    if args.pairing is not None or args.min_rotation is not None or args.min_translation is not None:
+        base = s.pairing if args.pairing is None else PRESET_FAMILIES["pairing"][args.pairing]
+        s = replace(s, pairing=override(base, {k: v for k, v in (("min_rotation_deg", args.min_rotation),
+                                                                  ("min_translation_m", args.min_translation))
+                                               if v is not None}, where="pairing"))
+    if args.rescaler is not None:
+        s = replace(s, rescaler=PRESET_FAMILIES["rescaler"][args.rescaler])
+    if args.no_temporal:
+        s = replace(s, rescaler=replace(s.rescaler, temporal=None))
+    if args.points is not None:
+        s = replace(s, points=parse_points_spec(args.points, seed=s.points.seed))
+    if args.seed is not None:
+        s = override(s, {"rescaler": {"ransac": {"seed": args.seed}}, "disparity": {"seed": args.seed}})
+        s = replace(s, points=override(s.points, seed=args.seed, where="points"))
+    s = _disparity_from_args(args, s)
+    if args.device is not None:
+        applied = False
+        if uses_device(s.matcher):
+            s = replace(s, matcher=override(s.matcher, device=args.device, where="matcher"))
+            applied = True
+        if s.disparity.source == "model":
+            s = override(s, {"disparity": {"model": {"device": args.device}}})
+            applied = True
+        if not applied:
+            raise SettingsError(f"--device {args.device} does not apply: the {type(s.matcher).__name__} matcher "
+                                "and this disparity source run on the CPU")
+    run = override(run, {k: v for k, v in (("max_frames", args.max_frames), ("uncertainty", args.uncertainty),
+                                            ("max_eval_depth", args.max_depth)) if v is not None}, where="run")
+    if args.no_backfill:
+        run = replace(run, backfill=False)
+    return s, run
+
+
+def _disparity_from_args(args, s: PipelineSettings) -> PipelineSettings:
+    if args.disparity_dir and args.model:
+        raise SettingsError("--disparity-dir and --model are mutually exclusive")
+    source = args.disparity
+    if source is not None and source.lower() not in DISPARITY_CHOICES:
+        hint = " (a folder of <stem>.npy files goes to --disparity-dir)" if "/" in source or "." in source else ""
+        raise SettingsError(f"--disparity {source!r}: expected one of {', '.join(DISPARITY_CHOICES)}{hint}")
+    implied = "files" if args.disparity_dir else "model" if args.model else None
+    if source is not None and implied is not None and source.lower() != implied:
+        raise SettingsError(f"--disparity {source} contradicts --{'disparity-dir' if implied == 'files' else 'model'}")
+    changes: dict = {}
+    if source is not None or implied is not None:
+        changes["source"] = (source or implied).lower()
+        changes["path"] = args.disparity_dir or args.model or ""
+    if args.model_variant is not None:
+        changes["model_variant"] = args.model_variant
+    if args.model_input_size is not None:
+        changes["model"] = {"input_size": args.model_input_size}
+    return override(s, {"disparity": changes}) if changes else s
+
+
+# --------------------------------------------------------------------------- commands
 def _cmd_presets() -> int:
-    from matchers import available_matchers
+    for family, presets in PRESET_FAMILIES.items():
+        print(f"{family}:")
+        for name in presets:
+            mark = " (default)" if name == presets.default else ""
+            print(f"  {name:20s} {presets.describe(name)}{mark}")
+    print("points:\n  " + ", ".join(POINT_SPEC_FORMS))
+    print("disparity:\n  " + ", ".join(DISPARITY_CHOICES) + "   (simulation presets: " + ", ".join(disparity_presets()) + ")")
+    print("formats:\n  " + ", ".join(available_formats()))
+    return 0
 
-    from .io import available_formats
-    from .keyframes import PAIRING_PRESETS
-    from .poses import available_pose_sources
 
-    print("matchers:     " + ", ".join(available_matchers()))
-    print("pairing:      " + ", ".join(f"{k} ({v.min_rotation_deg:g} deg / {v.min_translation_m:g} m)"
-                                        for k, v in PAIRING_PRESETS.items()))
-    print("poses:        " + ", ".join(available_pose_sources()))
-    print("formats:      " + ", ".join(available_formats()))
-    print("points:       sfm, lidar:N, random:N")
+def _cmd_config(args) -> int:
+    pipeline, run = settings_from_args(args)
+    print(dump_config(pipeline, run), end="")
     return 0
 
 
 def _cmd_run(args) -> int:
-    from .disparity import DisparityDirectory, SequenceDisparity
-    from .io import open_sequence
-    from .keyframes import pairing_preset
-    from .pipeline import Pipeline, PipelineSettings
-    from .poses import create_pose_source
-    from .rescale import RescalerSettings
-    from .run import format_table, run_sequence
-
-    from matchers import available_matchers
-
-    from vio_core.errors import UnknownNameError
-    from .poses import available_pose_sources
-    from .reference_points import parse_points_spec
-
     # Names and numbers first: a typo fails before any file is read or written.
-    if args.disparity and args.model:
-        raise _usage("--disparity and --model are mutually exclusive")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise _usage("--max-frames must be >= 1")
-    if args.matcher not in available_matchers():
-        raise UnknownNameError("matcher", args.matcher, available_matchers())
-    if args.poses not in available_pose_sources():
-        raise UnknownNameError("pose source", args.poses, available_pose_sources())
-    parse_points_spec(args.points)
-    pairing = pairing_preset(args.pairing, min_rotation_deg=args.min_rotation, min_translation_m=args.min_translation)
+    settings, run = settings_from_args(args)
     sequence = open_sequence(args.sequence, format=args.format)
-    if args.disparity == "simulated":
-        from .simulate.gt_disparity import GroundTruthSimulatedDisparity
-
-        if not sequence.has_gt_depth:
-            raise _usage(f"{sequence.root}: --disparity simulated needs ground-truth depth, which this sequence lacks")
-        disparity = GroundTruthSimulatedDisparity(seed=args.seed)
-    elif args.disparity:
-        disparity = DisparityDirectory(args.disparity)
-    elif args.model:
-        from .models import DepthAnythingSettings, ModelDisparity
-
-        disparity = ModelDisparity.from_path(args.model, DepthAnythingSettings(input_size=args.model_input_size,
-                                                                               device=args.device),
-                                             variant=args.model_variant)
-    else:
-        disparity = SequenceDisparity(sequence)
-    pose_source = create_pose_source(args.poses, sequence)
-    rescaler = RescalerSettings.default(seed=args.seed, temporal=not args.no_temporal)
-    settings = PipelineSettings(matcher=args.matcher, device=args.device, pairing=pairing, rescaler=rescaler,
-                                points=args.points, points_seed=args.seed)
+    pipeline = Pipeline(settings, sequence=sequence)
     # Check the first frame's inputs before anything is written.
     first = sequence[0]
     first.image()
-    if isinstance(disparity, DisparityDirectory) and disparity(first) is None:
-        raise _usage(f"{disparity.path_for(first)}: missing (expected one <image stem>.npy per frame)")
-    pipeline = Pipeline(settings, pose_source, disparity)
-    summary = run_sequence(sequence, pipeline, args.out, max_frames=args.max_frames, uncertainty=args.uncertainty,
-                           max_eval_depth=args.max_depth, progress=args.progress,
-                           backfill=not args.no_backfill)
+    if settings.disparity.source == "files" and pipeline.disparity_source(first) is None:
+        raise SettingsError(f"{pipeline.disparity_source.path_for(first)}: missing "
+                            "(expected one <image stem>.npy per frame)")
+    summary = run_sequence(sequence, pipeline, args.out, run, progress=args.progress, command=args.command_line)
     print(format_table(summary))
     return 0
 
 
-class _UsageError(VioDepthError):
-    pass
-
-
-def _usage(msg: str) -> _UsageError:
-    return _UsageError(msg)
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    """Log records of the ``vio_depth`` logger go to stderr: warnings by default, -v info,
+    -vv debug, -q errors only (one handler, also when ``main`` is called repeatedly)."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    for h in [h for h in log.handlers if getattr(h, "_vio_depth_cli", False)]:
+        log.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("vio-depth: %(levelname)s: %(name)s: %(message)s"))
+    handler._vio_depth_cli = True
+    log.addHandler(handler)
+    log.setLevel(level)
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = _build_parser().parse_args(argv)
+    args.command_line = ["vio-depth", *argv]
+    _configure_logging(args.verbose, args.quiet)
     try:
         if args.command == "presets":
             return _cmd_presets()
+        if args.command == "config":
+            return _cmd_config(args)
         return _cmd_run(args)
     except VioDepthError as exc:
         print(f"vio-depth: error: {exc}", file=sys.stderr)

@@ -12,14 +12,17 @@ the largest baseline and the per-point parallax check decides which points survi
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
 
-from vio_core.errors import SettingsError, lookup
+from matchers import Features
+from vio_core.errors import SettingsError
 from vio_core.geometry import rotation_angle_deg
-from .types import Frame
+from vio_core.settings import Presets
+
+from .frame import Frame
 
 
 @dataclass(frozen=True)
@@ -58,17 +61,20 @@ class PairingSettings:
 
 #: Named pairing presets. "kitti"/"ddad" are the paper's thresholds; "indoor" scales the
 #: translation threshold to room-sized scenes (depths of a few metres).
-PAIRING_PRESETS: dict[str, PairingSettings] = {
+PAIRING_PRESETS: Presets = Presets("pairing preset", {
     "kitti": PairingSettings(min_rotation_deg=5.0, min_translation_m=1.5),
     "ddad": PairingSettings(min_rotation_deg=5.0, min_translation_m=2.0),
     "indoor": PairingSettings(min_rotation_deg=5.0, min_translation_m=0.15),
-}
+}, default="kitti", descriptions={
+    "kitti": "5 deg / 1.5 m (the paper's KITTI threshold)",
+    "ddad": "5 deg / 2 m (the paper's DDAD threshold)",
+    "indoor": "5 deg / 0.15 m (room-sized scenes)",
+})
 
 
 def pairing_preset(name: str, **overrides) -> PairingSettings:
     """Preset ``name`` from :data:`PAIRING_PRESETS`, with optional field overrides."""
-    preset = lookup("pairing preset", name, PAIRING_PRESETS)
-    return replace(preset, **{k: v for k, v in overrides.items() if v is not None})
+    return PAIRING_PRESETS.get_preset(name, **overrides)
 
 
 @dataclass(frozen=True)
@@ -96,7 +102,7 @@ class Keyframe:
     """A buffered frame with its features, extracted once when it was processed."""
 
     frame: Frame
-    features: object
+    features: Features
 
 
 class KeyframeBuffer:

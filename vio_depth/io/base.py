@@ -1,11 +1,11 @@
 """Sequence abstraction and the format registry shared by every loader.
 
 A :class:`Sequence` holds only light metadata (paths, timestamps, poses, IMU samples);
-pixel data are read lazily when a :class:`~vio_depth.types.Frame`'s loaders are called,
+pixel data are read lazily when a :class:`~vio_depth.frame.Frame`'s loaders are called,
 so iterating a sequence never holds more than the current frame in memory.
 
-Loaders register themselves with :func:`register_format`; :func:`open_sequence`
-auto-detects the format or honours an explicit ``format=`` name.
+Loaders register themselves with :func:`register_format` when :mod:`vio_depth.io` imports
+them; :func:`open_sequence` auto-detects the format or honours an explicit ``format=`` name.
 """
 
 from __future__ import annotations
@@ -17,20 +17,35 @@ from typing import Callable, Iterator
 
 from vio_core.camera import Camera
 from vio_core.errors import InputError, lookup
-from ..types import Frame, ImuData
+
+from ..disparity import DisparitySpec
+from ..frame import Frame, ImuData
 
 
 class Sequence(abc.ABC):
-    """A lazily loaded image sequence with poses and optional IMU/depth/disparity."""
+    """A lazily loaded image sequence with poses and optional IMU, depth and disparity.
+
+    Attributes:
+        root: the sequence folder.
+        name: a short name (the folder's, or the one its metadata gives).
+        camera: intrinsics of every frame.
+        imu: the whole sequence's IMU samples, or None.
+        disparity: the disparity the folder carries (:class:`~vio_depth.disparity.DisparitySpec`),
+            or None; the disparity stage reads or simulates it.
+    """
 
     #: format name, e.g. "native", "kitti_raw"
     format_name: str = ""
+    #: why ``imu`` is None, for error messages ("" = the folder has no IMU data)
+    imu_missing_reason: str = ""
 
-    def __init__(self, root: Path, name: str, camera: Camera, imu: ImuData | None = None):
+    def __init__(self, root: Path, name: str, camera: Camera, imu: ImuData | None = None,
+                 disparity: DisparitySpec | None = None):
         self.root = Path(root)
         self.name = name
         self.camera = camera
         self.imu = imu
+        self.disparity = disparity
 
     @abc.abstractmethod
     def __len__(self) -> int: ...
@@ -42,14 +57,6 @@ class Sequence(abc.ABC):
     @property
     @abc.abstractmethod
     def has_gt_depth(self) -> bool: ...
-
-    @property
-    def has_disparity(self) -> bool:
-        return False
-
-    @property
-    def disparity_is_simulated(self) -> bool:
-        return False
 
     def __getitem__(self, index: int) -> Frame:
         if not -len(self) <= index < len(self):
@@ -81,18 +88,7 @@ def register_format(fmt: SequenceFormat) -> SequenceFormat:
 
 
 def available_formats() -> list[str]:
-    _load_builtin_formats()
     return sorted(_FORMATS)
-
-
-def _load_builtin_formats() -> None:
-    # Importing the loader modules registers them.
-    from . import native  # noqa: F401
-
-    try:  # real-data loaders (issue 4) may not be present in every checkout
-        from . import kitti, sevenscenes, tum  # noqa: F401
-    except ImportError:
-        pass
 
 
 def open_sequence(path, format: str | None = None) -> Sequence:
@@ -102,7 +98,6 @@ def open_sequence(path, format: str | None = None) -> Sequence:
         InputError: ``path`` is missing or no format recognises it.
         UnknownNameError: ``format`` is not a registered format name.
     """
-    _load_builtin_formats()
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file or directory")

@@ -8,6 +8,8 @@ native sequence format always uses 256.
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -15,6 +17,8 @@ import numpy as np
 
 from vio_core.checks import check_array
 from vio_core.errors import InputError, SequenceFormatError
+
+from .images import read_image_bytes
 
 #: KITTI / native-format depth scale: stored uint16 value per metre.
 DEPTH_PNG_SCALE = 256.0
@@ -37,7 +41,8 @@ def read_depth_png(path, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise SequenceFormatError(path, "depth PNG not found")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    data = read_image_bytes(path)
+    raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if raw is None:
         raise SequenceFormatError(path, "cannot decode depth PNG")
     if raw.ndim != 2:
@@ -90,9 +95,6 @@ def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
 
 def write_bytes_atomic(path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
-    import os
-    import tempfile
-
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
     try:

@@ -22,7 +22,7 @@ The loader therefore returns colour-camera frames: ``camera`` is
 surface per pixel, 0 where the depth camera sees nothing). The depth-to-colour
 extrinsic is a generic Kinect v1 calibration (not this unit's), so a few pixels of
 misregistration remain near depth edges: compare against it with robust statistics
-(:mod:`vio_depth.point_accuracy`). The colour and depth images are also not
+(:mod:`vio_depth.evaluation.point_accuracy`). The colour and depth images are also not
 synchronised (hand-held motion), which limits how well the poses fit the colour images.
 
 Other caveats: no timestamps (frame ``k`` gets ``k / 30`` s, the Kinect's nominal
@@ -39,13 +39,16 @@ from pathlib import Path
 import numpy as np
 
 from vio_core.camera import Camera
-from vio_core.checks import check_array, check_transform
+from vio_core.checks import check_transform
 from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import invert_transform
-from ..types import Frame
+
+from ..frame import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import read_depth_png
-from .native import read_rgb_image
+from .images import read_rgb_image
+from .rasterize import register_depth
+from .tables import read_matrix
 
 #: nominal frame rate used to make timestamps, Hz
 SEVENSCENES_FPS = 30.0
@@ -84,52 +87,6 @@ class SevenScenesSettings:
     register_depth: bool = True
 
 
-def rasterize_depth(points_c, camera: Camera) -> np.ndarray:
-    """Sparse depth image of 3-D points, keeping the nearest point per pixel.
-
-    Args:
-        points_c: (N, 3) metres in the camera frame of ``camera`` (z forward).
-        camera: pinhole camera (undistorted pixel grid).
-
-    Returns:
-        (H, W) float32 metres, 0 where no point falls.
-    """
-    p = check_array("points_c", points_c, (None, 3))
-    depth = np.zeros((camera.height, camera.width), np.float32)
-    p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > 0)]
-    if len(p) == 0:
-        return depth
-    uv, z = camera.project(p)
-    col = np.round(uv[:, 0]).astype(np.int64)
-    row = np.round(uv[:, 1]).astype(np.int64)
-    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-    col, row, z = col[inside], row[inside], z[inside]
-    order = np.argsort(-z, kind="stable")  # far first: nearer points overwrite them
-    depth[row[order], col[order]] = z[order]
-    return depth
-
-
-def register_depth(depth, depth_camera: Camera, colour_camera: Camera, T_colour_depth) -> np.ndarray:
-    """Re-project a depth image into another camera (nearest surface per pixel).
-
-    Args:
-        depth: (H_d, W_d) metres in ``depth_camera``'s pixel grid, 0 = invalid.
-        depth_camera: camera of ``depth``.
-        colour_camera: target camera.
-        T_colour_depth: (4, 4) depth-camera-to-target-camera transform, metres.
-
-    Returns:
-        (H_c, W_c) float32 metres in the target camera (z), 0 = no depth.
-    """
-    d = check_array("depth", depth, (depth_camera.height, depth_camera.width))
-    T = check_transform("T_colour_depth", T_colour_depth)
-    v, u = np.nonzero(np.isfinite(d) & (d > 0))
-    if len(u) == 0:
-        return np.zeros((colour_camera.height, colour_camera.width), np.float32)
-    p_d = depth_camera.backproject(np.stack([u, v], axis=1).astype(np.float64), d[v, u].astype(np.float64))
-    return rasterize_depth(p_d @ T[:3, :3].T + T[:3, 3], colour_camera)
-
-
 def read_sevenscenes_depth(path, camera: Camera | None = None) -> np.ndarray:
     """Read a 7-Scenes depth PNG (uint16 millimetres; 0 and 65535 = invalid).
 
@@ -148,24 +105,8 @@ def _load_registered_depth(path, depth_camera: Camera, colour_camera: Camera, T_
     return register_depth(read_sevenscenes_depth(path, depth_camera), depth_camera, colour_camera, T_colour_depth)
 
 
-def read_matrix_file(path, shape: tuple[int, int]) -> np.ndarray:
-    """Read a whitespace-separated numeric matrix of ``shape`` from a text file."""
-    path = Path(path)
-    try:
-        values = np.array(path.read_text().split(), dtype=np.float64)
-    except ValueError:
-        raise SequenceFormatError(path, "non-numeric value in matrix file") from None
-    except OSError as e:
-        raise SequenceFormatError(path, f"cannot read: {e.strerror}") from None
-    if values.size != shape[0] * shape[1]:
-        raise SequenceFormatError(path, f"expected {shape[0]}x{shape[1]} numbers, got {values.size}")
-    if not np.all(np.isfinite(values)):
-        raise SequenceFormatError(path, "non-finite value in matrix file")
-    return values.reshape(shape)
-
-
 def _read_pose(path: Path) -> np.ndarray:
-    T = read_matrix_file(path, (4, 4))
+    T = read_matrix(path, (4, 4), "4x4 camera-to-world pose")
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
         raise SequenceFormatError(path, f"last row must be 0 0 0 1, got {T[3].tolist()}")
     R = T[:3, :3]
@@ -207,7 +148,7 @@ class SevenScenesSequence(Sequence):
         intr = folder / "camera-intrinsics.txt"
         depth_camera = SEVENSCENES_DEPTH_CAMERA
         if intr.is_file():
-            K = read_matrix_file(intr, (3, 3))
+            K = read_matrix(intr, (3, 3), "3x3 intrinsics")
             try:
                 # 7-Scenes images are 640x480; the principal point does not tell the size
                 depth_camera = Camera.from_K(K, SEVENSCENES_DEPTH_CAMERA.width, SEVENSCENES_DEPTH_CAMERA.height)

@@ -17,7 +17,7 @@ p2 [k3]]``, pixels, OpenCV radial-tangential distortion), else the published Fre
 (:data:`TUM_CAMERAS`), else an error asking for ``camera.txt``.
 
 IMU: the Kinect has an accelerometer but no gyroscope, so the sequence has no
-:class:`~vio_depth.types.ImuData` and ``--poses imu`` is not possible; the accelerometer
+:class:`~vio_depth.frame.ImuData` and ``--poses imu`` is not possible; the accelerometer
 samples are kept in :attr:`TumRgbdSequence.accelerometer` for reference.
 """
 
@@ -29,15 +29,15 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from vio_core.camera import Camera
-from vio_core.checks import check_array
 from vio_core.errors import InputError, SequenceFormatError
-from ..types import Frame
+
+from ..frame import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import read_depth_png
-from .native import read_rgb_image
+from .images import read_rgb_image
+from .tables import TextTable, associate_nearest, interpolate_poses, read_text_table, read_tum_trajectory
 
 #: depth PNG units per metre
 TUM_DEPTH_SCALE = 5000.0
@@ -65,130 +65,42 @@ class TumSettings:
     max_time_difference: float = 0.02
 
 
-def read_tum_list(path, n_values: int, *, numeric: bool) -> tuple[np.ndarray, list]:
-    """Read a TUM text list: ``timestamp value...`` per line, ``#`` comments.
-
-    Args:
-        path: the file.
-        n_values: number of values after the timestamp.
-        numeric: parse the values as floats (else keep them as strings).
-
-    Returns:
-        ``(t (N,) seconds, rows)`` where rows is an (N, n_values) float array when
-        ``numeric`` else a list of lists of strings.
-
-    Raises:
-        SequenceFormatError: naming file and line, for a short or non-numeric line or
-            decreasing timestamps.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise SequenceFormatError(path, "file not found")
-    times, rows = [], []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.split()
-        if len(parts) < 1 + n_values:
-            raise SequenceFormatError(
-                path, f"expected a timestamp and {n_values} values, got {len(parts)} fields", lineno)
-        try:
-            t = float(parts[0])
-            vals = [float(p) for p in parts[1:1 + n_values]] if numeric else parts[1:1 + n_values]
-        except ValueError:
-            raise SequenceFormatError(path, f"non-numeric value in {s[:50]!r}", lineno) from None
-        if times and t < times[-1]:
-            raise SequenceFormatError(path, f"timestamp {t} is earlier than the previous line's", lineno)
-        times.append(t)
-        rows.append(vals)
-    if not times:
-        raise SequenceFormatError(path, "no entries")
-    t = np.asarray(times, dtype=np.float64)
-    return t, (np.asarray(rows, dtype=np.float64).reshape(len(t), n_values) if numeric else rows)
-
-
-def associate_nearest(t_query, t_ref, max_difference: float) -> np.ndarray:
-    """Index of the nearest reference timestamp for each query, -1 when none is close enough.
-
-    Args:
-        t_query: (N,) seconds.
-        t_ref: (M,) seconds, non-decreasing.
-        max_difference: seconds.
-
-    Returns:
-        (N,) int64 indices into ``t_ref`` (-1 = farther than ``max_difference``).
-    """
-    q = check_array("t_query", t_query, (None,), finite=True)
-    r = check_array("t_ref", t_ref, (None,), finite=True)
-    if len(r) == 0:
-        return np.full(len(q), -1, np.int64)
-    hi = np.clip(np.searchsorted(r, q), 1, max(len(r) - 1, 1))
-    lo = hi - 1
-    if len(r) == 1:
-        best = np.zeros(len(q), np.int64)
-    else:
-        best = np.where(np.abs(r[lo] - q) <= np.abs(r[hi] - q), lo, hi)
-    return np.where(np.abs(r[best] - q) <= max_difference, best, -1).astype(np.int64)
-
-
-def interpolate_poses(t_query, t_ref, T_ref, max_difference: float) -> tuple[np.ndarray, np.ndarray]:
-    """Poses at ``t_query`` interpolated between the reference samples around each time.
-
-    Translation is interpolated linearly and rotation along the geodesic. A query needs
-    a reference sample within ``max_difference``; when the query is not bracketed by
-    two samples (or the bracketing gap exceeds ``2 * max_difference``) the nearest
-    sample's pose is used.
-
-    Args:
-        t_query: (N,) seconds.
-        t_ref: (M,) seconds, non-decreasing.
-        T_ref: (M, 4, 4) poses at ``t_ref``.
-        max_difference: seconds.
-
-    Returns:
-        ``(T (N, 4, 4), ok (N,) bool)``; rows with ``ok`` False are identity.
-    """
-    q = check_array("t_query", t_query, (None,), finite=True)
-    r = check_array("t_ref", t_ref, (None,), finite=True)
-    T = check_array("T_ref", T_ref, (len(r), 4, 4), finite=True)
-    nearest = associate_nearest(q, r, max_difference)
-    ok = nearest >= 0
-    out = np.tile(np.eye(4), (len(q), 1, 1))
-    if not ok.any():
-        return out, ok
-    out[ok] = T[nearest[ok]]
-    if len(r) >= 2:
-        j = np.clip(np.searchsorted(r, q, side="right") - 1, 0, len(r) - 2)
-        gap = r[j + 1] - r[j]
-        brk = ok & (r[j] <= q) & (q <= r[j + 1]) & (gap > 0) & (gap <= 2 * max_difference)
-        if brk.any():
-            jb = j[brk]
-            a = (q[brk] - r[jb]) / gap[brk]
-            R0 = Rotation.from_matrix(T[jb, :3, :3])
-            R1 = Rotation.from_matrix(T[jb + 1, :3, :3])
-            step = (R0.inv() * R1).as_rotvec()
-            out[brk, :3, :3] = (R0 * Rotation.from_rotvec(step * a[:, None])).as_matrix()
-            out[brk, :3, 3] = (1 - a)[:, None] * T[jb, :3, 3] + a[:, None] * T[jb + 1, :3, 3]
-    return out, ok
-
-
 def parse_camera_txt(path) -> tuple[float, ...]:
     """``camera.txt``: first non-comment line ``fx fy cx cy [k1 k2 p1 p2 [k3]]`` -> floats."""
-    path = Path(path)
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        try:
-            values = tuple(float(v) for v in s.split())
-        except ValueError:
-            raise SequenceFormatError(path, f"non-numeric value in {s[:50]!r}", lineno) from None
-        if len(values) not in (4, 8, 9):
-            raise SequenceFormatError(
-                path, f"expected 'fx fy cx cy [k1 k2 p1 p2 [k3]]', got {len(values)} values", lineno)
-        return values
-    raise SequenceFormatError(path, "no camera line")
+    table = read_text_table(path, "camera", layout="fx fy cx cy [k1 k2 p1 p2 [k3]]", min_columns=4)
+    first = TextTable(table.path, table.rows[:1], table.lines[:1])
+    if len(first.rows[0]) not in (4, 8, 9):
+        raise first.error(0, f"expected 'fx fy cx cy [k1 k2 p1 p2 [k3]]', got {len(first.rows[0])} values")
+    return tuple(float(v) for v in first.floats(what="value")[0])
+
+
+def _read_tum_list(path, what: str) -> tuple[np.ndarray, list[str]]:
+    """``timestamp file`` per line (rgb.txt, depth.txt): ``(t (N,) s, relative paths)``."""
+    table = read_text_table(path, Path(path).name, layout=f"timestamp {what}", min_columns=2)
+    t = table.floats(slice(0, 1), what="timestamp")[:, 0]
+    table.check_increasing(t, strict=False)
+    return t, table.column(1)
+
+
+def freiburg_camera_name(folder: Path) -> str | None:
+    """``"freiburgN"`` named by the folder's own name or by ``rgb.txt``'s header, else None.
+
+    The folder's name is taken as given (a symlink keeps its name); the header of a real
+    ``rgb.txt`` names the recording (``# file: 'rgbd_dataset_freiburg1_rpy.bag'``), so a
+    renamed folder is still recognised.
+    """
+    names = [Path(folder).name]
+    rgb = Path(folder) / "rgb.txt"
+    try:
+        with open(rgb, encoding="utf-8", errors="replace") as fh:
+            names += [line for _, line in zip(range(5), fh) if line.startswith("#")]
+    except OSError:
+        pass
+    for text in names:
+        m = _FREIBURG_RE.search(text)
+        if m and f"freiburg{m.group(1)}" in TUM_CAMERAS:
+            return f"freiburg{m.group(1)}"
+    return None
 
 
 def tum_camera(folder, width: int, height: int) -> Camera:
@@ -205,13 +117,13 @@ def tum_camera(folder, width: int, height: int) -> Camera:
             return Camera(width, height, v[0], v[1], v[2], v[3], v[4:])
         except InputError as e:
             raise SequenceFormatError(cam_file, str(e)) from None
-    m = _FREIBURG_RE.search(folder.resolve().name)
-    if m and f"freiburg{m.group(1)}" in TUM_CAMERAS:
-        cam = TUM_CAMERAS[f"freiburg{m.group(1)}"]
+    name = freiburg_camera_name(folder)
+    if name is not None:
+        cam = TUM_CAMERAS[name]
         if (cam.width, cam.height) != (width, height):
             cam = cam.scaled(width / cam.width, height / cam.height)
         return cam
-    raise SequenceFormatError(folder, "cannot tell the camera: the folder name names no known Freiburg camera "
+    raise SequenceFormatError(folder, "cannot tell the camera: neither the folder name nor rgb.txt's header names a known Freiburg camera "
                                       f"({', '.join(sorted(TUM_CAMERAS))}) and there is no camera.txt "
                                       "('fx fy cx cy [k1 k2 p1 p2 [k3]]')")
 
@@ -236,32 +148,25 @@ class TumRgbdSequence(Sequence):
             raise InputError(f"{folder}: no rgb.txt (not a TUM RGB-D folder)")
         self.settings = settings
         tol = settings.max_time_difference
-        t_rgb, rgb_rows = read_tum_list(rgb_file, 1, numeric=False)
+        t_rgb, rgb_rows = _read_tum_list(rgb_file, "rgb/<file>.png")
         keep = np.ones(len(t_rgb), bool)
 
         depth_file = folder / "depth.txt"
         depth_paths = None
         if depth_file.is_file():
-            t_depth, depth_rows = read_tum_list(depth_file, 1, numeric=False)
+            t_depth, depth_rows = _read_tum_list(depth_file, "depth/<file>.png")
             idx = associate_nearest(t_rgb, t_depth, tol)
             if not (idx >= 0).any():
                 raise SequenceFormatError(depth_file, (
                     f"no depth timestamp within {tol} s of any rgb.txt timestamp "
                     f"(rgb {t_rgb[0]:.3f}..{t_rgb[-1]:.3f}, depth {t_depth[0]:.3f}..{t_depth[-1]:.3f})"))
             keep &= idx >= 0
-            depth_paths = [folder / depth_rows[i][0] if i >= 0 else None for i in idx]
+            depth_paths = [folder / depth_rows[i] if i >= 0 else None for i in idx]
 
         gt_file = folder / "groundtruth.txt"
         poses = None
         if gt_file.is_file():
-            t_gt, gt_rows = read_tum_list(gt_file, 7, numeric=True)
-            q_norm = np.linalg.norm(gt_rows[:, 3:], axis=1)
-            if np.any(np.abs(q_norm - 1) > 0.01):
-                bad = int(np.argmax(np.abs(q_norm - 1) > 0.01))
-                raise SequenceFormatError(gt_file, f"quaternion of entry {bad + 1} has norm {q_norm[bad]:.3f}, not 1")
-            T_gt = np.tile(np.eye(4), (len(t_gt), 1, 1))
-            T_gt[:, :3, :3] = Rotation.from_quat(gt_rows[:, 3:] / q_norm[:, None]).as_matrix()
-            T_gt[:, :3, 3] = gt_rows[:, :3]
+            t_gt, T_gt = read_tum_trajectory(gt_file)
             poses, ok = interpolate_poses(t_rgb, t_gt, T_gt, tol)
             if not ok.any():
                 raise SequenceFormatError(gt_file, (
@@ -275,15 +180,15 @@ class TumRgbdSequence(Sequence):
         sel = np.nonzero(keep)[0]
         self.dropped = int(len(t_rgb) - len(sel))
         self._times = t_rgb[sel]
-        self._rgb = [folder / rgb_rows[i][0] for i in sel]
+        self._rgb = [folder / rgb_rows[i] for i in sel]
         self._depth = None if depth_paths is None else [depth_paths[i] for i in sel]
         self._poses = None if poses is None else poses[sel]
 
         acc_file = folder / "accelerometer.txt"
         self.accelerometer = None
         if acc_file.is_file():
-            t_acc, acc = read_tum_list(acc_file, 3, numeric=True)
-            self.accelerometer = (t_acc, acc)
+            rows = read_text_table(acc_file, "accelerometer", layout="timestamp ax ay az", columns=4).floats()
+            self.accelerometer = (rows[:, 0].copy(), rows[:, 1:].copy())
 
         first = read_rgb_image(self._rgb[0])
         camera = tum_camera(folder, first.shape[1], first.shape[0])

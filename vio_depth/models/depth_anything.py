@@ -37,9 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from vio_core.checks import check_image
-from ..disparity import check_disparity
-from vio_core.errors import InputError, MissingDependencyError, UnknownNameError
-from ..types import Frame
+from vio_core.errors import InputError, MissingDependencyError, SettingsError, UnknownNameError
+
 from .original_checkpoint import (
     DepthAnythingArchitecture,
     hf_attention_names,
@@ -84,7 +83,7 @@ class DepthAnythingSettings:
 
     def __post_init__(self):
         if not isinstance(self.input_size, (int, np.integer)) or self.input_size < 14:
-            raise InputError(f"input_size must be an integer >= 14, got {self.input_size!r}")
+            raise SettingsError(f"input_size must be an integer >= 14, got {self.input_size!r}")
         if self.device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
             raise UnknownNameError("device", self.device, ["cpu", "cuda", "cuda:<index>"])
         if self.dtype not in DTYPES:
@@ -397,28 +396,3 @@ def _summarise(problems: dict[str, list[str]], limit: int = 5) -> str:
 
 
 # ------------------------------------------------------------------- disparity source
-
-class ModelDisparity:
-    """Disparity source running a Depth Anything network on each frame's image.
-
-    ``ModelDisparity(model)(frame)`` is ``model.predict(frame.image())``, checked to be
-    (H, W) like the frame's camera. ``kind`` is "model" (written to frames.jsonl).
-    """
-
-    kind = "model"
-
-    def __init__(self, model: DepthAnythingModel):
-        self.model = model
-
-    @classmethod
-    def from_path(cls, path, settings: DepthAnythingSettings | None = None, *,
-                  variant: str | DepthAnythingArchitecture | None = None) -> "ModelDisparity":
-        """Load weights with :func:`load_depth_anything` and wrap them."""
-        return cls(load_depth_anything(path, settings, variant=variant))
-
-    def __repr__(self) -> str:
-        return f"ModelDisparity({self.model!r})"
-
-    def __call__(self, frame: Frame) -> np.ndarray:
-        disparity = self.model.predict(frame.image())
-        return check_disparity(disparity, frame, f"{self.model.path} on frame {frame.stem}")

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from vio_core.errors import VioDepthError
+
 from .generate import generate_sample, sample_names, write_checksums
 
 

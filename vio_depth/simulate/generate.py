@@ -7,7 +7,7 @@ byte-identical from run to run on the same software stack (numpy, scipy, OpenCV,
 scikit-image versions), which ``SHA256SUMS`` lets one check.
 
 The disparity of the samples is SIMULATED at load time from the ground-truth depth
-(:mod:`vio_depth.simulate.disparity`); no disparity files are stored.
+(:mod:`vio_depth.disparity.simulation`); no disparity files are stored.
 """
 
 from __future__ import annotations
@@ -25,13 +25,21 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array
 from vio_core.errors import InputError, lookup
 from vio_core.geometry import invert_transform, make_transform
-from ..io.native import NativeSequenceWriter, simulated_disparity
-from .disparity import disparity_preset
+
+from ..disparity import DisparitySpec, disparity_preset
+from ..io.native_writer import NativeSequenceWriter
 from .imu import GRAVITY_W, ImuNoise, simulate_imu
 from .render import RenderSettings, render_view
-from .scenes import build_scene
-from .trajectory import (DrivingTrajectory, Sinusoids, SinusoidTrajectory, Trajectory, euler_zyx_to_matrix,
-                         plan_drive, smoothstep)
+from .scene_library import build_scene
+from .trajectory import (
+    DrivingTrajectory,
+    Sinusoids,
+    SinusoidTrajectory,
+    Trajectory,
+    euler_zyx_to_matrix,
+    plan_drive,
+    smoothstep,
+)
 
 #: IMU (x forward, y left, z up) to camera (x right, y down, z forward) axis permutation
 R_I_C_BASE = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -233,7 +241,7 @@ def generate_sample(spec: SampleSpec | str, out_dir, *, n_frames: int | None = N
     writer = NativeSequenceWriter(out, spec.name, spec.camera, image_ext=".jpg", jpeg_quality=spec.jpeg_quality,
                                   metadata=metadata)
     writer.set_imu(imu, simulation=imu_notes)
-    writer.set_disparity(simulated_disparity(spec.disparity_seed, disparity_preset("default")))
+    writer.set_disparity(DisparitySpec.simulated(spec.disparity_seed, disparity_preset("default")))
     start = time.perf_counter()
     for i, (t, T_w_c) in enumerate(zip(t_frames, poses)):
         view = render_view(scene, spec.camera, T_w_c, settings=spec.render, noise_seed=[spec.seed, 3, i])

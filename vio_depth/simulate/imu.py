@@ -23,8 +23,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from vio_core.checks import check_array, check_transform
-from vio_core.errors import InputError
-from ..types import ImuData
+from vio_core.errors import InputError, SettingsError
+
+from ..frame import ImuData
 from .trajectory import Trajectory
 
 GRAVITY_W = (0.0, 0.0, -9.81)
@@ -52,7 +53,7 @@ class ImuNoise:
 
     def __post_init__(self):
         if any(v < 0 for v in asdict(self).values()):
-            raise InputError("IMU noise parameters must be non-negative")
+            raise SettingsError("IMU noise parameters must be non-negative")
 
     def to_json(self) -> dict:
         return asdict(self)

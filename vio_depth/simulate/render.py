@@ -26,7 +26,8 @@ import numpy as np
 
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
-from vio_core.errors import InputError
+from vio_core.errors import InputError, SettingsError
+
 from .scenes import Scene
 from .textures import sample_texture, sample_trilinear
 
@@ -52,11 +53,11 @@ class RenderSettings:
 
     def __post_init__(self):
         if int(self.supersampling) != self.supersampling or self.supersampling < 1:
-            raise InputError(f"supersampling must be a positive integer, got {self.supersampling}")
+            raise SettingsError(f"supersampling must be a positive integer, got {self.supersampling}")
         if self.max_aniso < 1 or self.max_aniso & (self.max_aniso - 1):
-            raise InputError(f"max_aniso must be a power of two, got {self.max_aniso}")
+            raise SettingsError(f"max_aniso must be a power of two, got {self.max_aniso}")
         if not self.near_m > 0 or not self.noise_dn >= 0:
-            raise InputError("near_m must be > 0 and noise_dn >= 0")
+            raise SettingsError("near_m must be > 0 and noise_dn >= 0")
 
 
 @dataclass(frozen=True)

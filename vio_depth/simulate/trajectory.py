@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from vio_core.checks import check_array
 from vio_core.errors import InputError
@@ -187,8 +188,6 @@ class DrivingTrajectory(Trajectory):
     """
 
     def __init__(self, t_knots, xy, height: Sinusoids, pitch_roll: Sinusoids):
-        from scipy.interpolate import make_interp_spline
-
         t_knots = check_array("t_knots", t_knots, (None,), finite=True)
         xy = check_array("xy", xy, (len(t_knots), 2), finite=True)
         if np.any(np.diff(t_knots) <= 0):

@@ -10,13 +10,12 @@ from scipy.spatial.transform import Rotation
 from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import relative_transform
+from vio_depth.evaluation.metrics import depth_reprojection_errors
 from vio_depth.io import open_sequence
-from vio_depth.metrics import depth_reprojection_errors
-from vio_depth.io.kitti import (
+from vio_depth.io.kitti import KittiRawSequence, KittiSettings
+from vio_depth.io.kitti_oxts import (
     EARTH_RADIUS_M,
     OXTS_FIELDS,
-    KittiRawSequence,
-    KittiSettings,
     load_kitti_calibration,
     oxts_poses,
     project_velodyne,

@@ -10,11 +10,12 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
-from vio_depth.io import native, open_sequence
-from vio_depth.io.native import (NativeSequence, NativeSequenceWriter, files_disparity, simulated_disparity,
-                                 write_native_sequence)
-from vio_depth.simulate.disparity import disparity_preset, simulate_disparity
-from vio_depth.types import ImuData
+from vio_depth.disparity import DisparityKind, DisparitySettings, DisparitySpec, create_disparity_source
+from vio_depth.disparity.simulation import disparity_preset, simulate_disparity
+from vio_depth.frame import ImuData
+from vio_depth.io import depth_png, images, open_sequence
+from vio_depth.io.native import NativeSequence
+from vio_depth.io.native_writer import NativeSequenceWriter, write_native_sequence
 
 CAM = Camera(32, 24, 30.0, 31.0, 15.5, 11.5)
 N = 5
@@ -46,7 +47,7 @@ def _write(root, disparity="simulated", seed=0):
     t, images, poses, depths, imu = _data(seed)
     kwargs = {}
     if disparity == "simulated":
-        kwargs["disparity"] = simulated_disparity(5, disparity_preset("default"))
+        kwargs["disparity"] = DisparitySpec.simulated(5, disparity_preset("default"))
     elif disparity == "files":
         rng = np.random.default_rng(1)
         kwargs["disparities"] = [rng.uniform(0, 10, (CAM.height, CAM.width)).astype(np.float32) for _ in range(N)]
@@ -59,7 +60,7 @@ def test_round_trip_exact_or_within_stated_tolerance(tmp_path):
     seq = open_sequence(tmp_path / "seq")
     assert isinstance(seq, NativeSequence) and seq.format_name == "native"
     assert seq.name == "tiny" and seq.camera == CAM and len(seq) == N
-    assert seq.has_gt_depth and seq.has_disparity and not seq.disparity_is_simulated
+    assert seq.has_gt_depth and seq.disparity.kind == DisparityKind.FILES
     for i, f in enumerate(seq):
         assert f.index == i and f.stem == f"{i:06d}"
         assert f.timestamp == pytest.approx(t[i], abs=1e-9)
@@ -79,32 +80,36 @@ def test_round_trip_exact_or_within_stated_tolerance(tmp_path):
         (1e-3, 2e-2, 3e-5, 4e-3)
     assert seq.imu.gravity_w == (0.0, 0.0, -9.80665)
     rng = np.random.default_rng(1)
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    assert disparity.kind == DisparityKind.FILES
     for i in range(N):
         expected = rng.uniform(0, 10, (CAM.height, CAM.width)).astype(np.float32)
-        assert np.array_equal(seq[i].disparity(), expected)
+        assert np.array_equal(disparity(seq[i]), expected)
 
 
 def test_simulated_disparity_is_flagged_and_computed_from_gt_depth(tmp_path):
     _write(tmp_path / "seq", disparity="simulated")
     seq = NativeSequence(tmp_path / "seq")
-    assert seq.disparity_is_simulated and seq.has_disparity
+    assert seq.disparity.kind == DisparityKind.SIMULATED
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    assert disparity.kind == DisparityKind.SIMULATED  # outputs label it SIMULATED
     f = seq[3]
-    assert f.disparity_is_simulated
     expected = simulate_disparity(f.gt_depth(), 5, 3, disparity_preset("default")).disparity
-    assert np.array_equal(f.disparity(), expected)
-    assert not np.array_equal(seq[2].disparity(), expected[:, :])
+    assert np.array_equal(disparity(f), expected)
+    assert not np.array_equal(disparity(seq[2]), expected[:, :])
 
 
 def test_no_pixels_are_read_until_requested(tmp_path, monkeypatch):
     _write(tmp_path / "seq", disparity="simulated")
     calls = []
-    real_imread = cv2.imread
+    real_read = images.read_image_bytes
 
-    def counting_imread(path, *args):
+    def counting_read(path):
         calls.append(Path(path).name)
-        return real_imread(path, *args)
+        return real_read(path)
 
-    monkeypatch.setattr(native.cv2, "imread", counting_imread)
+    monkeypatch.setattr(images, "read_image_bytes", counting_read)
+    monkeypatch.setattr(depth_png, "read_image_bytes", counting_read)
     seq = open_sequence(tmp_path / "seq")
     frames = list(seq)
     assert [f.timestamp for f in frames] and all(f.T_w_c is not None for f in frames)
@@ -112,7 +117,7 @@ def test_no_pixels_are_read_until_requested(tmp_path, monkeypatch):
     frames[2].image()
     assert calls == ["000002.png"]
     frames[4].gt_depth()
-    frames[1].disparity()  # simulated: reads that frame's depth only
+    create_disparity_source(DisparitySettings(), seq)(frames[1])  # simulated: reads that frame's depth only
     assert calls == ["000002.png", "000004.png", "000001.png"]
 
 
@@ -207,9 +212,13 @@ def test_pixel_size_mismatch_is_reported_when_loaded(tmp_path, what):
         np.save(path, np.zeros((3, 3), np.float32))
     seq = NativeSequence(root)  # opening still works: pixels are not read
     f = seq[1]
-    with pytest.raises(SequenceFormatError) as err:
-        getattr(f, {"image": "image", "depth": "gt_depth", "disparity": "disparity"}[what])()
-    assert err.value.path == str(path)
+    if what == "disparity":  # read by the disparity stage, which names the file
+        with pytest.raises(InputError, match=str(path)):
+            create_disparity_source(DisparitySettings(), seq)(f)
+    else:
+        with pytest.raises(SequenceFormatError) as err:
+            getattr(f, {"image": "image", "depth": "gt_depth"}[what])()
+        assert err.value.path == str(path)
     seq[0].image()  # other frames are unaffected
 
 
@@ -230,8 +239,8 @@ def test_writer_rejects_bad_frames(tmp_path):
 
 
 def test_disparity_source_json_round_trip_and_validation():
-    src = simulated_disparity(3, disparity_preset("hard"))
+    src = DisparitySpec.simulated(3, disparity_preset("hard"))
     assert src.to_json()["model"]["distortion"] == disparity_preset("hard").distortion
-    assert files_disparity("d").to_json() == {"kind": "files", "folder": "d"}
+    assert DisparitySpec.files("d").to_json() == {"kind": "files", "folder": "d"}
     with pytest.raises(InputError):
-        simulated_disparity(-1)
+        DisparitySpec.simulated(-1)

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from matchers import create_matcher
 from vio_core.geometry import relative_transform
-from vio_depth.point_accuracy import point_depth_errors
+from vio_depth.evaluation.point_accuracy import point_depth_errors
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"
 
@@ -20,9 +21,8 @@ pytestmark = pytest.mark.shared_data
 
 @pytest.fixture(scope="module")
 def tools():
-    sift = pytest.importorskip("matchers.sift")
     tri = pytest.importorskip("triangulation")
-    return sift.create_sift(), tri.triangulate_pair, tri.TriangulationSettings()
+    return create_matcher("sift"), tri.triangulate_pair, tri.TriangulationSettings()
 
 
 def _open(name):

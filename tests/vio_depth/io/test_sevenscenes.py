@@ -10,13 +10,13 @@ from scipy.spatial.transform import Rotation
 from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import invert_transform, relative_transform
+from vio_depth.evaluation.metrics import depth_reprojection_errors
 from vio_depth.io import open_sequence
-from vio_depth.metrics import depth_reprojection_errors
+from vio_depth.io.rasterize import register_depth
 from vio_depth.io.sevenscenes import (
     SEVENSCENES_FPS,
     SevenScenesSequence,
     SevenScenesSettings,
-    register_depth,
 )
 from vio_depth.poses import create_pose_source
 
@@ -103,7 +103,7 @@ def test_imu_pose_source_is_refused(tmp_path):
 def test_malformed_files_name_the_file(tmp_path):
     root = write_7scenes(tmp_path / "a")
     (root / "frame-000001.pose.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0\n")
-    with pytest.raises(SequenceFormatError, match=r"frame-000001.pose.txt: expected 4x4 numbers, got 15"):
+    with pytest.raises(SequenceFormatError, match=r"frame-000001.pose.txt:4: expected 4 columns \(4x4 matrix row\), got 3"):
         open_sequence(root)
     root = write_7scenes(tmp_path / "b")
     (root / "frame-000003.pose.txt").unlink()
@@ -111,7 +111,7 @@ def test_malformed_files_name_the_file(tmp_path):
         open_sequence(root, format="7scenes")
     root = write_7scenes(tmp_path / "c")
     (root / "camera-intrinsics.txt").write_text("585 0 320\n0 585 240\n")
-    with pytest.raises(SequenceFormatError, match=r"camera-intrinsics.txt: expected 3x3 numbers"):
+    with pytest.raises(SequenceFormatError, match=r"camera-intrinsics.txt: expected 3 lines of 3 numbers"):
         open_sequence(root)
     root = write_7scenes(tmp_path / "d")
     (root / "frame-000002.depth.png").write_bytes(b"not a png")

@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.errors import InputError, SequenceFormatError
 from vio_depth.io import open_sequence
-from vio_depth.io.tum import TUM_CAMERAS, TumRgbdSequence, TumSettings, associate_nearest
+from vio_depth.io.tables import associate_nearest
+from vio_depth.io.tum import TUM_CAMERAS, TumRgbdSequence, TumSettings
 from vio_depth.poses import create_pose_source
 
 W, H = 64, 48
@@ -124,7 +125,7 @@ def test_malformed_lines_name_file_and_line(tmp_path):
     lines = (root / "groundtruth.txt").read_text().splitlines()
     lines[4] = lines[4].rsplit(" ", 2)[0]  # truncated pose line
     (root / "groundtruth.txt").write_text("\n".join(lines) + "\n")
-    with pytest.raises(SequenceFormatError, match=r"groundtruth.txt:5: expected a timestamp and 7 values"):
+    with pytest.raises(SequenceFormatError, match=r"groundtruth.txt:5: expected 8 columns \(t tx ty tz qx qy qz qw\), got 6"):
         open_sequence(root, format="tum_rgbd")
     (root / "groundtruth.txt").unlink()
     (root / "depth.txt").write_text("1305031102.0 depth/a.png\nnot_a_time depth/b.png\n")

@@ -17,12 +17,13 @@ torch = pytest.importorskip("torch")
 transformers = pytest.importorskip("transformers")
 
 from vio_core.camera import Camera  # noqa: E402
-from vio_core.errors import InputError, MissingDependencyError, ShapeError, UnknownNameError  # noqa: E402
+from vio_core.errors import InputError, MissingDependencyError, SettingsError, ShapeError, UnknownNameError  # noqa: E402
+from vio_depth.disparity import ModelDisparity
+from vio_depth.frame import Frame  # noqa: E402
 from vio_depth.models import (  # noqa: E402
     ARCHITECTURES,
     DepthAnythingArchitecture,
     DepthAnythingSettings,
-    ModelDisparity,
     hf_to_original_state_dict,
     load_depth_anything,
     network_input_size,
@@ -30,7 +31,6 @@ from vio_depth.models import (  # noqa: E402
     resize_disparity,
 )
 from vio_depth.models.original_checkpoint import hf_config, resolve_architecture  # noqa: E402
-from vio_depth.types import Frame  # noqa: E402
 
 IMAGE_HW = (70, 98)
 SMALL = DepthAnythingSettings(input_size=42, device="cpu")  # 70 x 98 -> 42 x 56 network input
@@ -176,7 +176,7 @@ def test_settings_reject_unknown_names():
         DepthAnythingSettings(dtype="bfloat16")
     with pytest.raises(UnknownNameError, match="cuda"):
         DepthAnythingSettings(device="tpu")
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         DepthAnythingSettings(input_size=10)
 
 

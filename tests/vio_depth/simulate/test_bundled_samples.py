@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from vio_core.geometry import invert_transform, transform_points
+from vio_depth.disparity import DisparityKind, DisparitySettings, create_disparity_source
 from vio_depth.io import open_sequence
 from vio_depth.simulate.generate import camera_poses, sample_spec
 from vio_depth.simulate.imu import ideal_imu
@@ -30,14 +31,15 @@ def test_sample_loads_with_imu_depth_and_simulated_disparity(sample):
     name, seq = sample
     n_min, near, far, sky = PROMISES[name]
     assert seq.format_name == "native" and len(seq) >= n_min
-    assert seq.has_gt_depth and seq.disparity_is_simulated and seq.metadata["simulated"] is True
+    assert seq.has_gt_depth and seq.disparity.kind == DisparityKind.SIMULATED and seq.metadata["simulated"] is True
     assert 1.0 / np.median(np.diff(seq.imu.t)) == pytest.approx(200.0)
     assert seq.imu.t[0] <= seq.timestamps[0] and seq.imu.t[-1] >= seq.timestamps[-1]
     assert not np.allclose(seq.imu.T_c_i, np.eye(4))
     f = seq[len(seq) // 2]
-    img, depth, disp = f.image(), f.gt_depth(), f.disparity()
+    source = create_disparity_source(DisparitySettings(), seq)
+    img, depth, disp = f.image(), f.gt_depth(), source(f)
     assert img.shape == (seq.camera.height, seq.camera.width, 3) and img.dtype == np.uint8
-    assert disp.shape == depth.shape and f.disparity_is_simulated
+    assert disp.shape == depth.shape and source.kind == DisparityKind.SIMULATED
     # simulated disparity is (nearly) affine in 1/depth: strong correlation on valid pixels
     valid = depth > 0
     assert np.corrcoef(disp[valid], 1.0 / depth[valid])[0, 1] > 0.98

@@ -35,7 +35,7 @@ def test_generation_is_byte_identical_and_loads(tmp_path):
     assert _files(a) == fa
 
     seq = NativeSequence(a)
-    assert len(seq) == 3 and seq.disparity_is_simulated and seq.metadata["simulated"] is True
+    assert len(seq) == 3 and seq.disparity.kind == "simulated" and seq.metadata["simulated"] is True
     traj = spec.make_trajectory(spec.seed)
     np.testing.assert_allclose(seq.T_w_c, camera_poses(spec, traj, seq.timestamps), atol=2e-8)
     # T_c_i written with the samples maps the IMU trajectory onto the camera poses

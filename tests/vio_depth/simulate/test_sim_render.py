@@ -6,10 +6,10 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from vio_core.camera import Camera
-from vio_core.errors import InputError, UnknownNameError
+from vio_core.errors import InputError, SettingsError, UnknownNameError
 from vio_core.geometry import invert_transform, transform_points
 from vio_depth.simulate.render import RenderSettings, render_depth, render_view
-from vio_depth.simulate.scenes import build_scene, tiny_scene
+from vio_depth.simulate.scene_library import build_scene, tiny_scene
 from vio_depth.simulate.textures import build_mip_texture, make_tileable, sample_texture, sample_trilinear
 
 CAM = Camera(96, 72, 80.0, 80.0, 47.5, 35.5)
@@ -74,9 +74,9 @@ def test_depth_is_geometrically_exact_between_views(scene):
 
 
 def test_render_settings_validation_and_scene_names(scene):
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         RenderSettings(supersampling=0)
-    with pytest.raises(InputError):
+    with pytest.raises(SettingsError):
         RenderSettings(max_aniso=3)
     with pytest.raises(InputError):
         render_view(scene, CAM, np.eye(4))  # noise needs a seed

@@ -1,0 +1,64 @@
+"""Rigid transforms: inverse, relative poses, TUM rows, rotation angles."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vio_core import (
+    ShapeError,
+    check_transform,
+    invert_transform,
+    make_transform,
+    relative_transform,
+    rotation_angle_deg,
+    skew,
+    transform_from_tum,
+    transform_points,
+    transform_to_tum,
+)
+
+
+def _random_pose(rng):
+    return make_transform(Rotation.random(random_state=rng.integers(1 << 30)).as_matrix(), rng.normal(size=3))
+
+
+def test_inverse_and_relative_transforms():
+    rng = np.random.default_rng(0)
+    T_w_a, T_w_b = _random_pose(rng), _random_pose(rng)
+    np.testing.assert_allclose(invert_transform(T_w_a) @ T_w_a, np.eye(4), atol=1e-12)
+    T_a_b = relative_transform(T_w_a, T_w_b)
+    np.testing.assert_allclose(T_w_a @ T_a_b, T_w_b, atol=1e-12)
+    p_b = rng.normal(size=(5, 3))
+    np.testing.assert_allclose(transform_points(T_w_a, transform_points(T_a_b, p_b)),
+                               transform_points(T_w_b, p_b), atol=1e-12)
+
+
+def test_tum_row_round_trip_and_quaternion_check():
+    rng = np.random.default_rng(1)
+    T = _random_pose(rng)
+    np.testing.assert_allclose(transform_from_tum(transform_to_tum(T)), T, atol=1e-12)
+    row = transform_to_tum(T)
+    row[3:] *= 1.5  # not a unit quaternion
+    with pytest.raises(ValueError, match="quaternion norm"):
+        transform_from_tum(row)
+
+
+def test_rotation_angle_and_skew():
+    R = Rotation.from_rotvec([0.0, 0.0, np.radians(30.0)]).as_matrix()
+    assert rotation_angle_deg(R) == pytest.approx(30.0)
+    assert rotation_angle_deg(np.eye(3)) == 0.0
+    v, w = np.array([1.0, 2.0, 3.0]), np.array([-2.0, 0.5, 4.0])
+    np.testing.assert_allclose(skew(v) @ w, np.cross(v, w))
+
+
+def test_invalid_transforms_are_refused():
+    T = np.eye(4)
+    T[3, 0] = 1.0
+    with pytest.raises(ShapeError, match="last row"):
+        check_transform("T", T)
+    T = np.eye(4)
+    T[0, 0] = -1.0  # a reflection
+    with pytest.raises(ShapeError, match="rotation"):
+        check_transform("T", T)
+    with pytest.raises(ShapeError, match="R"):
+        make_transform(np.eye(2), np.zeros(3))

@@ -1,0 +1,97 @@
+"""Tests of vio_depth/reference_points.py: simulated LiDAR rows, random samples, --points specs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vio_core.errors import InputError, SettingsError, UnknownNameError
+from vio_depth.evaluation.reference_points import (
+    PointSourceKind,
+    PointSourceSpec,
+    beam_rows,
+    lidar_beams,
+    parse_points_spec,
+    random_samples,
+)
+
+
+def _gt(h=100, w=50, first=10, last=89, seed=0):
+    """Depth valid on rows first..last only (like KITTI's projected LiDAR), with holes."""
+    rng = np.random.default_rng(seed)
+    gt = rng.uniform(1.0, 80.0, (h, w)).astype(np.float32)
+    gt[:first] = 0.0
+    gt[last + 1:] = 0.0
+    gt[rng.random((h, w)) < 0.3] = 0.0
+    gt[first, 0] = gt[last, 0] = 5.0  # make sure the band is exactly [first, last]
+    return gt
+
+
+def test_beam_rows_are_evenly_spaced_band_centres():
+    gt = _gt()  # band of 80 rows, 10..89
+    assert beam_rows(gt, 1).tolist() == [50]  # 10 + floor(0.5 * 80)
+    rows16 = beam_rows(gt, 16)
+    assert rows16[0] == 12 and np.all(np.diff(rows16) == 5)  # 10 + floor((k + 0.5) * 5)
+    rows32 = beam_rows(gt, 32)
+    assert rows32[0] == 11 and rows32[-1] == 88 and len(set(rows32)) == 32
+    full = beam_rows(gt, 4, over_valid_rows=False)  # whole height: 100 rows
+    assert full.tolist() == [12, 37, 62, 87]
+    assert len(beam_rows(gt, 80)) == 80
+    with pytest.raises(InputError):
+        beam_rows(gt, 81)
+    with pytest.raises(InputError):
+        beam_rows(np.zeros((5, 5)), 1)
+
+
+def test_lidar_beams_take_every_valid_pixel_of_those_rows():
+    gt = _gt()
+    uv, depth = lidar_beams(gt, 16)
+    rows = beam_rows(gt, 16)
+    assert set(uv[:, 1].astype(int)) <= set(rows.tolist())
+    assert len(uv) == int((gt[rows] > 0).sum())
+    np.testing.assert_array_equal(depth, gt[uv[:, 1].astype(int), uv[:, 0].astype(int)])
+    assert np.all(depth > 0)
+
+
+def test_random_samples():
+    gt = _gt()
+    uv, depth = random_samples(gt, 500, seed=3)
+    assert len(uv) == 500 and np.all(depth > 0)
+    flat = uv[:, 1].astype(int) * gt.shape[1] + uv[:, 0].astype(int)
+    assert len(np.unique(flat)) == 500  # distinct pixels
+    np.testing.assert_array_equal(depth, gt.reshape(-1)[flat])
+    uv2, _ = random_samples(gt, 500, seed=3)
+    uv3, _ = random_samples(gt, 500, seed=4)
+    assert np.array_equal(uv, uv2) and not np.array_equal(uv, uv3)
+    small = np.zeros((4, 4))
+    small[1, 2] = small[3, 0] = 2.0
+    uv, depth = random_samples(small, 500)
+    assert uv.tolist() == [[2.0, 1.0], [0.0, 3.0]] and depth.tolist() == [2.0, 2.0]
+    with pytest.raises(InputError):
+        random_samples(gt, 0)
+
+
+def test_parse_points_spec():
+    assert parse_points_spec("sfm") == PointSourceSpec(PointSourceKind.SFM)
+    assert parse_points_spec("LiDAR:16") == PointSourceSpec(PointSourceKind.LIDAR, 16)
+    spec = parse_points_spec(" random:500 ")
+    assert spec.kind == PointSourceKind.RANDOM and spec.count == 500 and str(spec) == "random:500"
+    assert spec.uses_ground_truth and not parse_points_spec("sfm").uses_ground_truth
+    with pytest.raises(UnknownNameError) as info:
+        parse_points_spec("radar:4")
+    assert "lidar:<beams>" in str(info.value) and "random:<count>" in str(info.value)
+    assert "radar:4" in str(info.value)
+    for bad in ("lidar", "lidar:", "lidar:0", "lidar:-3", "random:1.5", "random:many", "sfm:3"):
+        with pytest.raises(SettingsError) as info:
+            parse_points_spec(bad)
+        assert "valid forms" in str(info.value)
+
+
+def test_spec_sample_dispatches():
+    gt = _gt()
+    uv, depth = parse_points_spec("lidar:1").sample(gt)
+    assert set(uv[:, 1].astype(int)) == {50}
+    uv, _ = parse_points_spec("random:20", seed=1).sample(gt)
+    assert len(uv) == 20
+    with pytest.raises(InputError):
+        parse_points_spec("sfm").sample(gt)

@@ -1,0 +1,90 @@
+"""Pipeline on a short slice of the bundled street sample (SIMULATED disparity)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_depth.disparity import DisparitySettings, create_disparity_source
+from vio_depth.io import open_sequence
+from vio_depth.keyframes import pairing_preset
+from vio_depth.pipeline import FrameStatus, Pipeline, PipelineSettings
+from vio_depth.poses import GroundTruthPoses
+
+STREET = Path(__file__).resolve().parents[3] / "sample_sequences" / "street"
+pytestmark = pytest.mark.skipif(not (STREET / "sequence.json").exists(), reason="street sample missing")
+
+
+class CountingMatcher:
+    """Wraps a matcher and counts calls, to check features are extracted once per frame."""
+
+    def __init__(self, inner):
+        self.inner, self.name = inner, inner.name
+        self.extracted, self.matched = [], 0
+
+    def extract(self, image):
+        self.extracted.append(image.shape)
+        return self.inner.extract(image)
+
+    def match(self, a, b):
+        self.matched += 1
+        return self.inner.match(a, b)
+
+
+def test_features_once_per_frame_pairs_with_several_keyframes_and_metric_depth():
+    seq = open_sequence(STREET)
+    pipe = Pipeline(PipelineSettings(pairing=pairing_preset("kitti")), GroundTruthPoses(), create_disparity_source(DisparitySettings(), seq))
+    counter = CountingMatcher(pipe.matcher)
+    pipe.points.matcher = counter
+    n = 10
+    results = [pipe.process(seq[i]) for i in range(n)]
+    assert len(counter.extracted) == n  # once per frame, never per pair
+    assert counter.matched > n  # some frames were matched with more than one keyframe
+    assert results[0].status == FrameStatus.NO_PAIR
+    assert any(len(r.points.partners) == 2 for r in results)
+    with_depth = [r for r in results if r.depth is not None]
+    assert len(with_depth) >= n - 2
+    for r, i in ((r, r.frame) for r in with_depth):
+        gt = seq[i].gt_depth()
+        both = np.isfinite(r.depth) & (gt > 0) & (gt < 80)
+        rel = np.abs(r.depth[both] - gt[both]) / gt[both]
+        assert np.median(rel) < 0.05, (i, np.median(rel))
+        # triangulated points used for the fit are accurate against ground truth
+        assert r.points_depth is not None and len(r.points_depth) >= 10
+    # pairs are with earlier keyframes beyond the paper's thresholds (or the weak fallback)
+    for r in results[1:]:
+        assert r.points.partners and r.points.partners[0] < r.frame
+
+
+def test_too_strict_pairing_without_weak_pairs_reports_no_pair():
+    seq = open_sequence(STREET)
+    settings = PipelineSettings(pairing=pairing_preset("kitti", min_translation_m=50.0, min_rotation_deg=90.0,
+                                                       allow_weak_pairs=False))
+    pipe = Pipeline(settings, GroundTruthPoses(), create_disparity_source(DisparitySettings(), seq))
+    results = [pipe.process(seq[i]) for i in range(3)]
+    assert all(r.status == FrameStatus.NO_PAIR for r in results)
+    assert "no keyframe beyond" in results[1].reason
+    assert all(r.depth is None for r in results)
+
+
+def test_image_is_read_once_per_frame_even_with_a_model_disparity_source():
+    seq = open_sequence(STREET)
+    reads = []
+
+    class ModelLike:
+        """Stands in for ModelDisparity: runs on the frame's image."""
+
+        kind = "model"
+
+        def __call__(self, frame):
+            image = frame.image()
+            return own(seq[frame.index]) + 0.0 * image[..., 0]
+
+    own = create_disparity_source(DisparitySettings(), seq)
+    pipe = Pipeline(PipelineSettings(), GroundTruthPoses(), ModelLike())
+    for i in range(3):
+        frame = seq[i]
+        original = frame.load_image
+        frame.load_image = lambda original=original: reads.append(1) or original()
+        pipe.process(frame)
+    assert len(reads) == 3

@@ -1,0 +1,48 @@
+"""Disparity stage: each frame's affine-invariant disparity, from files, a SIMULATION, or a network.
+
+=================  ==========================================================================
+module             job
+=================  ==========================================================================
+``base``           :class:`DisparitySource` protocol, :class:`DisparityKind`, :class:`DisparitySpec`
+``sources``        :class:`FileDisparity`, :class:`SimulatedDisparitySource`
+``model``          :class:`ModelDisparity` (Depth Anything, :mod:`vio_depth.models`)
+``simulation``     the SIMULATED disparity model (:func:`simulate_disparity`)
+``densify``        densifying sparse real ground truth before simulating
+``registry``       :class:`DisparitySettings` and :func:`create_disparity_source`
+=================  ==========================================================================
+"""
+
+from .base import DisparityKind, DisparitySource, DisparitySpec, check_disparity
+from .densify import GtDisparitySettings, densify_depth, simulate_gt_disparity
+from .model import ModelDisparity
+from .registry import DISPARITY_CHOICES, DisparitySettings, create_disparity_source, source_for_spec
+from .simulation import (
+    DisparitySimulation,
+    SimulatedDisparity,
+    disparity_preset,
+    disparity_presets,
+    simulate_disparity,
+)
+from .sources import FileDisparity, SimulatedDisparitySource
+
+__all__ = [
+    "DISPARITY_CHOICES",
+    "DisparityKind",
+    "DisparitySettings",
+    "DisparitySimulation",
+    "DisparitySource",
+    "DisparitySpec",
+    "FileDisparity",
+    "GtDisparitySettings",
+    "ModelDisparity",
+    "SimulatedDisparity",
+    "SimulatedDisparitySource",
+    "check_disparity",
+    "create_disparity_source",
+    "densify_depth",
+    "disparity_preset",
+    "disparity_presets",
+    "simulate_disparity",
+    "simulate_gt_disparity",
+    "source_for_spec",
+]

@@ -1,0 +1,92 @@
+"""The input records of the pipeline: one :class:`Frame` per image, :class:`ImuData` per sequence.
+
+Loaders (:mod:`vio_depth.io`) produce them, every stage reads them. Pixel data load lazily.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from vio_core.camera import Camera
+from vio_core.checks import check_array
+from vio_core.errors import ShapeError
+
+
+@dataclass(frozen=True)
+class ImuData:
+    """IMU samples of a whole sequence (small: loaded eagerly, unlike images).
+
+    Attributes:
+        t: (M,) seconds, strictly increasing, same clock as frame timestamps.
+        gyro: (M, 3) rad/s, angular rate in the IMU frame.
+        accel: (M, 3) m/s^2, specific force in the IMU frame (includes -gravity,
+            i.e. a resting IMU with z up reads about +9.81 on z).
+        T_c_i: (4, 4) IMU-to-camera transform (maps IMU-frame points into the camera frame).
+        gyro_noise: rad/s/sqrt(Hz) white-noise density.
+        accel_noise: m/s^2/sqrt(Hz) white-noise density.
+        gyro_bias_walk: rad/s^2/sqrt(Hz) bias random walk.
+        accel_bias_walk: m/s^3/sqrt(Hz) bias random walk.
+        gravity: m/s^2 magnitude; the world frame's gravity direction is given by
+            ``gravity_w`` ((3,), default -z).
+    """
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    T_c_i: np.ndarray
+    gyro_noise: float = 1.7e-4
+    accel_noise: float = 2.0e-3
+    gyro_bias_walk: float = 2.0e-5
+    accel_bias_walk: float = 3.0e-3
+    gravity_w: tuple[float, float, float] = (0.0, 0.0, -9.81)
+
+    def __post_init__(self):
+        t = check_array("imu.t", self.t, (None,), finite=True)
+        check_array("imu.gyro", self.gyro, (len(t), 3), finite=True)
+        check_array("imu.accel", self.accel, (len(t), 3), finite=True)
+        check_array("imu.T_c_i", self.T_c_i, (4, 4), finite=True)
+        if len(t) > 1 and np.any(np.diff(t) <= 0):
+            raise ShapeError("imu.t must be strictly increasing")
+
+    def window(self, t0: float, t1: float) -> "ImuData":
+        """Samples with ``t0 <= t <= t1`` seconds, plus one on each side when available."""
+        i0 = max(0, int(np.searchsorted(self.t, t0, side="right")) - 1)
+        i1 = min(len(self.t), int(np.searchsorted(self.t, t1, side="left")) + 1)
+        return ImuData(self.t[i0:i1], self.gyro[i0:i1], self.accel[i0:i1], self.T_c_i,
+                       self.gyro_noise, self.accel_noise, self.gyro_bias_walk,
+                       self.accel_bias_walk, self.gravity_w)
+
+
+@dataclass
+class Frame:
+    """One image of a sequence with everything known about it; pixel data load lazily.
+
+    Attributes:
+        index: 0-based position in the sequence.
+        timestamp: seconds.
+        stem: image file stem, used to name outputs (``depth/<stem>.png``).
+        camera: intrinsics of this image.
+        T_w_c: (4, 4) camera-to-world pose in metres, or None when unknown.
+        velocity_w: (3,) m/s world-frame velocity of the IMU when the dataset gives it
+            (KITTI OXTS), else None.
+    """
+
+    index: int
+    timestamp: float
+    stem: str
+    camera: Camera
+    T_w_c: np.ndarray | None
+    load_image: Callable[[], np.ndarray] = field(repr=False)
+    load_gt_depth: Callable[[], np.ndarray] | None = field(default=None, repr=False)
+    velocity_w: np.ndarray | None = None
+
+    def image(self) -> np.ndarray:
+        """(H, W, 3) uint8 RGB image."""
+        return self.load_image()
+
+    def gt_depth(self) -> np.ndarray | None:
+        """(H, W) float32 metres, 0 = invalid; None when the sequence has no depth."""
+        return None if self.load_gt_depth is None else self.load_gt_depth()

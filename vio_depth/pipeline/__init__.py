@@ -1,0 +1,36 @@
+"""Pipeline stage: one frame in, metric points, a fit and a metric depth map out.
+
+=================  ============================================================================
+module             job
+=================  ============================================================================
+``status``         :class:`FrameStatus`, :class:`PairStatus`, :func:`decide_frame_status`
+``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`
+``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
+``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML)
+``pipeline``       :class:`Pipeline` (``process(frame)``)
+``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
+=================  ============================================================================
+"""
+
+from .pipeline import Pipeline
+from .points import TwoViewPoints, most_certain_per_keypoint
+from .result import PIPELINE_STAGES, FrameResult, PairAttempt, PointsOutcome
+from .settings import PRESET_FAMILIES, PipelineSettings
+from .status import FrameStatus, PairStatus, decide_frame_status
+from .stream import FrameStream
+
+__all__ = [
+    "PIPELINE_STAGES",
+    "PRESET_FAMILIES",
+    "FrameResult",
+    "FrameStatus",
+    "FrameStream",
+    "PairAttempt",
+    "PairStatus",
+    "Pipeline",
+    "PipelineSettings",
+    "PointsOutcome",
+    "TwoViewPoints",
+    "decide_frame_status",
+    "most_certain_per_keypoint",
+]

@@ -1,0 +1,166 @@
+"""Composable pipeline settings: one settings object per stage, each chosen by preset name.
+
+:class:`PipelineSettings` holds the settings objects of every stage. Each stage family has
+named presets (:data:`PRESET_FAMILIES`); a plain dict (a TOML table) selects a preset with
+its ``preset`` key and overrides fields by name, e.g.::
+
+    [matcher]
+    preset = "sift"
+    ratio = 0.75
+
+    [rescaler.ransac]
+    inlier_sigmas = 2.5
+
+Every invalid value raises :class:`~vio_core.errors.SettingsError` naming its key path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from matchers import MATCHER_PRESETS, LearnedMatcherSettings, MatcherSettings, SiftSettings
+from triangulation import TRIANGULATION_PRESETS, TriangulationSettings
+from vio_core.errors import SettingsError
+from vio_core.settings import Presets, override, to_plain
+
+from ..disparity import DisparitySettings
+from ..evaluation import PointSourceSpec, parse_points_spec
+from ..keyframes import PAIRING_PRESETS, PairingSettings
+from ..poses import POSE_PRESETS, PoseSettings
+from ..rescale import RESCALER_PRESETS, RescalerSettings
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything that shapes a pipeline, one settings object per stage.
+
+    Attributes:
+        matcher: features and matching (:data:`matchers.MATCHER_PRESETS`: ``sift``,
+            ``disk+lightglue``, ``aliked+lightglue``, ``xfeat+lighterglue``).
+        poses: the pose source (:data:`vio_depth.poses.POSE_PRESETS`: ``gt``, ``imu``).
+        pairing: keyframe and pair selection (``kitti``, ``ddad``, ``indoor``).
+        triangulation: per-point checks (:class:`triangulation.TriangulationSettings`).
+        rescaler: robust fit, fallbacks and temporal filter (``streaming``, ``per_frame``, ``paper``).
+        points: where the metric points come from (``sfm``, or a reference source
+            ``lidar:N`` / ``random:N`` sampled from ground truth).
+        disparity: where the disparity comes from (the sequence's own, files, SIMULATED, a model).
+        min_matches: fewer matches than this in a pair -> it is not triangulated.
+    """
+
+    matcher: MatcherSettings = field(default_factory=SiftSettings)
+    poses: PoseSettings = field(default_factory=lambda: POSE_PRESETS["gt"])
+    pairing: PairingSettings = field(default_factory=lambda: PAIRING_PRESETS["kitti"])
+    triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
+    rescaler: RescalerSettings = field(default_factory=RescalerSettings)
+    points: PointSourceSpec = field(default_factory=PointSourceSpec)
+    disparity: DisparitySettings = field(default_factory=DisparitySettings)
+    min_matches: int = 20
+
+    def __post_init__(self):
+        if isinstance(self.points, str):
+            object.__setattr__(self, "points", parse_points_spec(self.points))
+        if isinstance(self.min_matches, bool) or not isinstance(self.min_matches, int) or self.min_matches < 1:
+            raise SettingsError(f"min_matches must be a positive integer, got {self.min_matches!r}")
+
+    # ------------------------------------------------------------------ presets
+    @classmethod
+    def from_presets(cls, *, matcher: str | None = None, poses: str | None = None, pairing: str | None = None,
+                     rescaler: str | None = None, triangulation: str | None = None,
+                     points: str | None = None, **fields) -> "PipelineSettings":
+        """Settings from preset names (None = the family's default) and other fields."""
+        s = cls(**fields)
+        chosen = {"matcher": matcher, "poses": poses, "pairing": pairing, "rescaler": rescaler,
+                  "triangulation": triangulation}
+        s = dataclasses.replace(s, **{k: PRESET_FAMILIES[k][v] for k, v in chosen.items() if v is not None})
+        if points is not None:
+            s = dataclasses.replace(s, points=parse_points_spec(points, seed=s.points.seed))
+        return s
+
+    def preset_names(self) -> dict[str, str | None]:
+        """For each stage family, the preset these settings derive from (by type and extractor)."""
+        return {name: family.name_of(getattr(self, name), key=_preset_key) for name, family in PRESET_FAMILIES.items()}
+
+    # ------------------------------------------------------------------ plain dicts / TOML
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain dict; each stage table records the ``preset`` it derives from."""
+        out = to_plain(self)
+        for name, preset in self.preset_names().items():
+            if preset is not None:
+                out[name] = {"preset": preset, **out[name]}
+        out["points"] = {"source": str(self.points), "seed": self.points.seed}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], base: "PipelineSettings | None" = None) -> "PipelineSettings":
+        """Settings from a nested plain dict (a parsed TOML file) applied on ``base`` (default settings).
+
+        A stage table's ``preset`` key first replaces that stage's settings with the named
+        preset; its other keys then override fields. ``points`` is a ``"lidar:16"``-style
+        string or a table ``{source = "lidar:16", seed = 0}``.
+
+        Raises:
+            SettingsError: an unknown table or key (the valid ones are listed), an unknown
+                preset, or an invalid value (its key path is named).
+        """
+        s = cls() if base is None else base
+        if not isinstance(data, Mapping):
+            raise SettingsError("settings must be a table")
+        valid = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(data) - set(valid))
+        if unknown:
+            raise SettingsError(f"unknown settings table(s) {', '.join(unknown)}; valid: {', '.join(valid)}")
+        changes: dict[str, Any] = {}
+        for name, value in data.items():
+            if name == "points":
+                changes["points"] = _points_from(value, s.points)
+            elif name in PRESET_FAMILIES:
+                changes[name] = _stage_from(name, value, getattr(s, name))
+            else:
+                changes[name] = value
+        return override(s, changes)
+
+
+def _preset_key(settings) -> Any:
+    """Presets of one family are told apart by type, and learned matchers by extractor."""
+    if isinstance(settings, LearnedMatcherSettings):
+        return (type(settings), settings.extractor)
+    return type(settings)
+
+
+def _stage_from(family: str, value, current):
+    if not isinstance(value, Mapping):
+        if isinstance(value, str):  # `matcher = "sift"`: a preset name alone
+            return PRESET_FAMILIES[family][value]
+        raise SettingsError(f"{family}: expected a table or a preset name, got {value!r}")
+    table = dict(value)
+    base = current
+    if "preset" in table:
+        base = PRESET_FAMILIES[family][table.pop("preset")]
+    return override(base, table, where=family)
+
+
+def _points_from(value, current: PointSourceSpec) -> PointSourceSpec:
+    if isinstance(value, str):
+        return parse_points_spec(value, seed=current.seed)
+    if not isinstance(value, Mapping):
+        raise SettingsError(f"points: expected 'sfm', 'lidar:N', 'random:N' or a table, got {value!r}")
+    table = dict(value)
+    unknown = sorted(set(table) - {"source", "seed"})
+    if unknown:
+        raise SettingsError(f"unknown setting(s) points.{', points.'.join(unknown)}; valid: seed, source")
+    seed = table.get("seed", current.seed)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise SettingsError(f"points.seed: expected an integer, got {seed!r}")
+    return parse_points_spec(table.get("source", str(current)), seed=seed)
+
+
+#: Every stage family with named presets (``vio-depth presets`` lists them).
+PRESET_FAMILIES: dict[str, Presets] = {
+    "matcher": MATCHER_PRESETS,
+    "poses": POSE_PRESETS,
+    "pairing": PAIRING_PRESETS,
+    "triangulation": TRIANGULATION_PRESETS,
+    "rescaler": RESCALER_PRESETS,
+}

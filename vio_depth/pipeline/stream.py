@@ -1,0 +1,169 @@
+"""Pushing frames from arrays: the pipeline for a ROS node, a notebook or any live source.
+
+:class:`FrameStream` takes, per frame, the image, its disparity, the timestamp and a pose
+(``T_w_c``) and/or the IMU samples since the previous frame, and returns the frame's
+:class:`~vio_depth.pipeline.FrameResult`. No sequence folder and no adapter classes::
+
+    stream = FrameStream(camera, PipelineSettings.from_presets(pairing="indoor"))
+    for t, image, disparity, T_w_c in source:
+        result = stream.push(image, disparity, timestamp=t, T_w_c=T_w_c)
+        if result.depth is not None:
+            ...  # (H, W) float32 metres, NaN = invalid
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_image, check_transform
+from vio_core.errors import InputError
+
+from ..disparity import DisparityKind, check_disparity
+from ..frame import Frame, ImuData
+from ..poses import GroundTruthPoses, ImuPoseSettings, ImuPoseSource, RelativePose
+from .pipeline import Pipeline
+from .result import FrameResult
+from .settings import PipelineSettings
+
+
+class _GivenDisparity:
+    """The disparity handed over with the frame being pushed."""
+
+    kind = DisparityKind.ARRAY
+
+    def __init__(self):
+        self.current: np.ndarray | None = None
+
+    def __call__(self, frame: Frame) -> np.ndarray | None:
+        if self.current is None:
+            return None
+        return check_disparity(self.current, frame, f"disparity of frame {frame.index}")
+
+
+class _History:
+    """The frames pushed so far, as the IMU pose source reads a sequence's past poses."""
+
+    def __init__(self):
+        self.frames: list[Frame] = []
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, index: int) -> Frame:
+        return self.frames[index]
+
+
+class FrameStream:
+    """The streaming pipeline fed with arrays, one frame at a time.
+
+    Args:
+        camera: intrinsics of the images.
+        settings: pipeline settings; ``settings.poses`` decides what each push needs: the
+            ``gt`` source takes ``T_w_c`` (camera-to-world, metres), the ``imu`` source the
+            IMU samples (and ``imu_calibration``), plus ``T_w_c`` when known.
+        imu_calibration: for the ``imu`` pose source: an :class:`~vio_depth.frame.ImuData`
+            whose ``T_c_i``, noise densities and gravity are used (its samples are ignored).
+    """
+
+    def __init__(self, camera: Camera, settings: PipelineSettings | None = None, *,
+                 imu_calibration: ImuData | None = None):
+        settings = PipelineSettings() if settings is None else settings
+        if not isinstance(camera, Camera):
+            raise InputError(f"camera must be a vio_core.Camera, got {type(camera).__name__}")
+        self.camera = camera
+        self._disparity = _GivenDisparity()
+        self._history = _History()
+        self._imu_calibration = imu_calibration
+        self._imu_t: list[np.ndarray] = []
+        self._imu_gyro: list[np.ndarray] = []
+        self._imu_accel: list[np.ndarray] = []
+        self._imu_source: ImuPoseSource | None = None
+        if isinstance(settings.poses, ImuPoseSettings):
+            if imu_calibration is None:
+                raise InputError("the imu pose source needs imu_calibration (an ImuData with T_c_i and noise densities)")
+            pose_source = _LazyImuPoses(self)
+        else:
+            pose_source = GroundTruthPoses(settings.poses)
+        self.pipeline = Pipeline(settings, pose_source, self._disparity)
+
+    @property
+    def settings(self) -> PipelineSettings:
+        return self.pipeline.settings
+
+    def push(self, image, disparity, *, timestamp: float | None = None, T_w_c=None, imu=None,
+             gt_depth=None) -> FrameResult:
+        """Process the next frame.
+
+        Args:
+            image: (H, W, 3) uint8 RGB (or (H, W) grey) of the camera's size.
+            disparity: (H, W) float affine-invariant disparity (bigger = nearer), NaN = invalid,
+                or None (the frame then gets status no_disparity).
+            timestamp: seconds, increasing (default: the frame number).
+            T_w_c: (4, 4) camera-to-world pose, metres, or None.
+            imu: the IMU samples since the previous push: ``(t (M,) s, gyro (M, 3) rad/s,
+                accel (M, 3) m/s^2)``, or None.
+            gt_depth: (H, W) metres ground truth (0 = invalid), for reference point sources.
+
+        Raises:
+            ShapeError / InputError: wrongly shaped arrays, decreasing time, a missing input
+                the pose source needs.
+        """
+        index = len(self._history)
+        image = np.asarray(image)
+        if image.ndim == 2:
+            image = np.repeat(image[:, :, None], 3, axis=2)
+        image = check_image("image", image, channels=3)
+        if image.shape[:2] != (self.camera.height, self.camera.width) or image.dtype != np.uint8:
+            raise InputError(f"image: expected ({self.camera.height}, {self.camera.width}, 3) uint8, "
+                             f"got {image.shape} {image.dtype}")
+        t = float(index if timestamp is None else timestamp)
+        if self._history.frames and not t > self._history.frames[-1].timestamp:
+            raise InputError(f"timestamps must increase: {t} after {self._history.frames[-1].timestamp}")
+        pose = None if T_w_c is None else check_transform("T_w_c", T_w_c)
+        depth = None if gt_depth is None else check_array("gt_depth", gt_depth, image.shape[:2]).astype(np.float32)
+        if imu is not None:
+            self._add_imu(*imu)
+        frame = Frame(index, t, f"{index:06d}", self.camera, pose, load_image=lambda: image,
+                      load_gt_depth=None if depth is None else (lambda: depth))
+        self._history.frames.append(frame)
+        self._disparity.current = None if disparity is None else np.asarray(disparity)
+        try:
+            return self.pipeline.process(frame)
+        finally:
+            self._disparity.current = None
+
+    def _add_imu(self, t, gyro, accel) -> None:
+        t = check_array("imu t", t, (None,), finite=True)
+        gyro = check_array("imu gyro", gyro, (len(t), 3), finite=True)
+        accel = check_array("imu accel", accel, (len(t), 3), finite=True)
+        if len(t) == 0:
+            return
+        self._imu_t.append(t)
+        self._imu_gyro.append(gyro)
+        self._imu_accel.append(accel)
+        cal = self._imu_calibration
+        if cal is None:
+            return
+        imu = ImuData(np.concatenate(self._imu_t), np.concatenate(self._imu_gyro), np.concatenate(self._imu_accel),
+                      cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk, cal.accel_bias_walk,
+                      cal.gravity_w)
+        if self._imu_source is None:
+            self._imu_source = ImuPoseSource(imu, self._history, self.settings.poses)
+        else:
+            self._imu_source.update_samples(imu)
+
+
+class _LazyImuPoses:
+    """The IMU pose source of a stream, created when the first samples arrive."""
+
+    name = "imu"
+
+    def __init__(self, stream: FrameStream):
+        self._stream = stream
+
+    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
+        source = self._stream._imu_source
+        if source is None:
+            return RelativePose(None, ok=False, reason="no IMU samples pushed yet")
+        return source.relative(keyframe, current)

@@ -1,0 +1,75 @@
+"""Dense metric depth and its per-pixel uncertainty from a disparity map and an affine fit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vio_core.checks import check_array, check_image
+from vio_core.errors import InputError
+
+from .affine import AffineFit, FitStatus
+
+
+def _usable(fit) -> tuple[float, float]:
+    alpha, beta = float(fit.alpha), float(fit.beta)
+    status = getattr(fit, "status", FitStatus.OK)
+    if status != FitStatus.OK or not (np.isfinite(alpha) and np.isfinite(beta) and alpha > 0):
+        raise InputError(f"metric depth needs an OK fit with finite alpha > 0, got status "
+                         f"{getattr(status, 'value', status)} alpha={alpha!r} beta={beta!r}")
+    return alpha, beta
+
+
+def metric_depth(disparity, fit: AffineFit, max_depth: float | None = None) -> np.ndarray:
+    """Metric depth map ``D = 1 / (alpha * d + beta)``.
+
+    Args:
+        disparity: (H, W) affine-invariant disparity (NaN = invalid).
+        fit: an OK :class:`AffineFit` (e.g. ``RescaleResult.fit``).
+        max_depth: metres, or None. Pixels deeper than this are marked invalid (NaN), since
+            depth grows without bound as ``alpha*d + beta`` approaches 0.
+
+    Returns:
+        (H, W) float32 metres; NaN where ``alpha*d + beta <= 0`` or non-finite (no ``abs()``:
+        such pixels have no metric depth under the fit), or beyond ``max_depth``.
+
+    Raises:
+        InputError: ``fit`` is not OK (a fallback decision belongs to the :class:`Rescaler`).
+    """
+    disp = check_image("disparity", disparity)
+    alpha, beta = _usable(fit)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        md = alpha * disp.astype(np.float64) + beta
+        depth = np.where(md > 0, 1.0 / md, np.nan)
+        if max_depth is not None:
+            depth = np.where(depth <= max_depth, depth, np.nan)
+    return depth.astype(np.float32)
+
+
+def depth_sigma_map(disparity, fit: AffineFit, max_depth: float | None = None) -> np.ndarray:
+    """Per-pixel standard deviation of the metric depth from the (alpha, beta) covariance.
+
+    First order: ``m = alpha*d + beta``, ``D = 1/m``,
+    ``sigma_m**2 = [d, 1] Sigma [d, 1]^T``, ``sigma_D = sigma_m / m**2``.
+
+    Args:
+        disparity: (H, W) affine-invariant disparity.
+        fit: an OK :class:`AffineFit` with a finite ``covariance`` (2, 2).
+        max_depth: metres or None; same invalid mask as :func:`metric_depth`.
+
+    Returns:
+        (H, W) float32 metres; NaN where :func:`metric_depth` is NaN or the covariance is
+        unknown.
+    """
+    disp = check_image("disparity", disparity).astype(np.float64)
+    alpha, beta = _usable(fit)
+    cov = check_array("fit.covariance", fit.covariance, (2, 2))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        md = alpha * disp + beta
+        var_m = disp * disp * cov[0, 0] + 2.0 * disp * cov[0, 1] + cov[1, 1]
+        sigma = np.sqrt(np.maximum(var_m, 0.0)) / (md * md)
+        ok = md > 0
+        if max_depth is not None:
+            ok &= 1.0 / md <= max_depth
+        sigma = np.where(ok, sigma, np.nan)
+    return sigma.astype(np.float32)
+

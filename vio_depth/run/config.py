@@ -1,0 +1,100 @@
+"""Run configuration files: :class:`RunSettings` and the TOML form of pipeline + run settings.
+
+A config file (``vio-depth run --config FILE``) holds one table per pipeline stage (see
+:class:`~vio_depth.pipeline.PipelineSettings`) and a ``[run]`` table; every key is optional
+and overrides the defaults. ``vio-depth config --dump`` prints the complete resolved form,
+which read back gives the same settings::
+
+    [matcher]
+    preset = "sift"
+    ratio = 0.8
+
+    [pairing]
+    preset = "indoor"
+
+    [run]
+    max_eval_depth = 10.0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from vio_core.errors import InputError, SettingsError
+from vio_core.settings import override, to_plain, toml_dumps, toml_loads
+
+from ..pipeline import PipelineSettings
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How a sequence is run (the ``[run]`` table of a config file).
+
+    Attributes:
+        max_frames: process only the first N frames (0 = all).
+        uncertainty: also write ``uncertainty/<stem>.png`` (1-sigma depth).
+        min_eval_depth / max_eval_depth: metres, the ground-truth range evaluated.
+        backfill: offline second chance for the frames at the start of the sequence that got
+            no depth because no earlier keyframe was far enough away: after the forward pass,
+            a fresh pipeline runs backwards in time from a later frame, so those frames pair
+            with *later* keyframes. Only results with depth replace the forward ones; they
+            are marked ``"backfilled": true``. Needs a pose source that works in both
+            directions (``gt``; ``imu`` integrates forward only, so its backward pairs fail).
+    """
+
+    max_frames: int = 0
+    uncertainty: bool = False
+    min_eval_depth: float = 1e-3
+    max_eval_depth: float = 80.0
+    backfill: bool = True
+
+    def __post_init__(self):
+        if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:
+            raise SettingsError(f"max_frames must be a non-negative integer (0 = all), got {self.max_frames!r}")
+        if not 0 <= self.min_eval_depth < self.max_eval_depth:
+            raise SettingsError("need 0 <= min_eval_depth < max_eval_depth (metres), got "
+                                f"{self.min_eval_depth!r}, {self.max_eval_depth!r}")
+
+
+def config_to_dict(pipeline: PipelineSettings, run: RunSettings) -> dict[str, Any]:
+    """The nested plain dict of a whole configuration (pipeline tables + ``run``)."""
+    return {**pipeline.to_dict(), "run": to_plain(run)}
+
+
+def config_from_dict(data: Mapping[str, Any], pipeline: PipelineSettings | None = None,
+                     run: RunSettings | None = None) -> tuple[PipelineSettings, RunSettings]:
+    """Apply a nested plain dict (a parsed config file) on ``pipeline`` / ``run`` (default: defaults)."""
+    data = dict(data)
+    run_table = data.pop("run", {})
+    if not isinstance(run_table, Mapping):
+        raise SettingsError(f"run: expected a table, got {run_table!r}")
+    return (PipelineSettings.from_dict(data, pipeline),
+            override(RunSettings() if run is None else run, run_table, where="run"))
+
+
+def dump_config(pipeline: PipelineSettings, run: RunSettings) -> str:
+    """TOML text of a whole configuration (``vio-depth config --dump``)."""
+    return toml_dumps(config_to_dict(pipeline, run))
+
+
+def load_config(path, pipeline: PipelineSettings | None = None,
+                run: RunSettings | None = None) -> tuple[PipelineSettings, RunSettings]:
+    """Read a TOML config file and apply it on ``pipeline`` / ``run``.
+
+    Raises:
+        InputError: the file is missing or unreadable.
+        SettingsError: invalid TOML, an unknown table or key, or an invalid value (named).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read config file ({exc})") from None
+    try:
+        return config_from_dict(toml_loads(text, str(path)), pipeline, run)
+    except SettingsError as exc:
+        raise SettingsError(f"{path}: {exc}") from None

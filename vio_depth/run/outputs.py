@@ -1,0 +1,49 @@
+"""Writing a run's outputs: depth (and 1-sigma) PNGs per frame, then frames.jsonl and metrics.json.
+
+Every file is written under a temporary name and renamed into place when complete, so an
+interrupted run never leaves a half-written file; ``frames.jsonl`` and ``metrics.json``
+appear only when the whole run succeeded.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..io.depth_png import write_bytes_atomic, write_depth_png
+from ..pipeline import FrameResult
+from ..rescale import depth_sigma_map
+from .record import FrameRecord, RunHeader
+from .summary import RunSummary
+
+
+class RunOutputs:
+    """The output folder of one run.
+
+    Layout: ``depth/<stem>.png`` (uint16, metres x 256, 0 = invalid), with ``uncertainty``
+    also ``uncertainty/<stem>.png`` (1-sigma of the depth from the fit's covariance, same
+    encoding), ``frames.jsonl`` and, with ground truth, ``metrics.json``.
+    """
+
+    def __init__(self, out_dir, *, uncertainty: bool = False):
+        self.root = Path(out_dir)
+        self.depth_dir = self.root / "depth"
+        self.sigma_dir = self.root / "uncertainty" if uncertainty else None
+        for folder in (self.depth_dir, self.sigma_dir):
+            if folder is not None:
+                folder.mkdir(parents=True, exist_ok=True)
+
+    def write_frame(self, result: FrameResult) -> None:
+        """The frame's depth PNG (and 1-sigma PNG); nothing for a frame without depth."""
+        if result.depth is None:
+            return
+        write_depth_png(self.depth_dir / f"{result.stem}.png", result.depth)
+        if self.sigma_dir is not None:
+            write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit))
+
+    def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None) -> None:
+        """``frames.jsonl`` (header line, then the records in order) and ``metrics.json`` when given."""
+        if summary is not None:
+            write_bytes_atomic(self.root / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
+        lines = [json.dumps(header.to_json())] + [json.dumps(r.to_json()) for r in records]
+        write_bytes_atomic(self.root / "frames.jsonl", ("\n".join(lines) + "\n").encode())

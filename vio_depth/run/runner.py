@@ -1,0 +1,159 @@
+"""Run the pipeline over a sequence: process every frame, evaluate, write the outputs.
+
+See :class:`~vio_depth.run.outputs.RunOutputs` for what is written and
+docs/frames_schema.md for the records.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+
+from tqdm import tqdm
+
+from .._version import __version__
+from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
+from ..frame import Frame
+from ..io import Sequence
+from ..pipeline import FrameResult, FrameStatus, Pipeline
+from .config import RunSettings, config_to_dict
+from .outputs import RunOutputs
+from .record import FrameRecord, RunHeader, frame_record
+from .summary import RunSummary
+
+log = logging.getLogger(__name__)
+
+
+def run_header(sequence: Sequence, pipeline: Pipeline, settings: RunSettings, command: list[str] | None) -> RunHeader:
+    """The :class:`RunHeader` of a run (version, command line, sequence, every setting)."""
+    kind = getattr(pipeline.disparity_source, "kind", "")
+    return RunHeader(
+        vio_depth_version=__version__,
+        command=command,
+        sequence={"root": str(sequence.root), "format": sequence.format_name, "name": sequence.name,
+                  "frames": len(sequence)},
+        settings=config_to_dict(pipeline.settings, settings),
+        disparity_kind=getattr(kind, "value", str(kind)),
+    )
+
+
+def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunSettings = RunSettings(), *,
+                 progress: bool | None = None, command: list[str] | None = None) -> RunSummary:
+    """Process ``sequence`` (or its first ``settings.max_frames`` frames) and write outputs to ``out_dir``.
+
+    Args:
+        sequence: an open sequence (:func:`vio_depth.io.open_sequence`).
+        pipeline: a fresh :class:`~vio_depth.pipeline.Pipeline` for it.
+        out_dir: the output folder (created if missing).
+        settings: :class:`RunSettings`.
+        progress: show a progress bar (None = only when stderr is a terminal).
+        command: the command line to record (the CLI passes ``sys.argv``).
+
+    Returns:
+        :class:`RunSummary` (also written to ``metrics.json`` with ground truth).
+
+    Raises:
+        InputError: unreadable inputs; files already written stay complete (atomic writes).
+    """
+    outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
+    n_total = len(sequence)
+    n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
+    t_start = time.perf_counter()
+    evaluate_points = not pipeline.settings.points.uses_ground_truth  # reference points come from the GT
+
+    def finish_frame(frame: Frame, res: FrameResult) -> tuple[FrameRecord, FrameEvaluation | None]:
+        t = time.perf_counter()
+        outputs.write_frame(res)
+        res.timings["write"] = time.perf_counter() - t
+        evaluation = None
+        if sequence.has_gt_depth:
+            t = time.perf_counter()
+            gt = frame.gt_depth()
+            if gt is not None:
+                evaluation = evaluate_frame(gt, res.depth, res.disparity, res.points_uv, res.points_depth,
+                                            min_depth=settings.min_eval_depth, max_depth=settings.max_eval_depth,
+                                            points=evaluate_points)
+            res.timings["evaluation"] = time.perf_counter() - t
+        return frame_record(res, evaluation), evaluation
+
+    results: dict[int, FrameResult] = {}
+    done: dict[int, tuple[FrameRecord, FrameEvaluation | None]] = {}
+    bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
+               disable=(not sys.stderr.isatty()) if progress is None else not progress, file=sys.stderr)
+    with_depth = 0
+    for i in bar:
+        t = time.perf_counter()
+        frame = sequence[i]
+        load = time.perf_counter() - t
+        res = pipeline.process(frame)
+        res.timings["load"] = load
+        results[i] = res
+        done[i] = finish_frame(frame, res)
+        with_depth += res.has_depth
+        bar.set_postfix(depth=f"{with_depth}/{i + 1}")
+    if settings.backfill and pipeline.points is not None:
+        for i, (frame, res) in _backfill(sequence, pipeline, results, n).items():
+            res.backfilled = True
+            res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
+            results[i] = res
+            done[i] = finish_frame(frame, res)
+
+    records = [done[i][0] for i in range(n)]
+    evaluations = [done[i][1] for i in range(n)]
+    header = run_header(sequence, pipeline, settings, command)
+    summary = RunSummary(
+        frames_in_sequence=n_total,
+        frames_processed=n,
+        frames_with_depth=sum(results[i].has_depth for i in range(n)),
+        status_counts={},
+        seconds=round(time.perf_counter() - t_start, 2),
+        disparity_kind=header.disparity_kind,
+        run=header.to_json(),
+    )
+    for r in records:
+        summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
+    dense = [e.metrics for e in evaluations if e is not None and e.metrics is not None]
+    oracle = [e.oracle for e in evaluations if e is not None and e.oracle is not None]
+    if dense:
+        summary.metrics[str(pipeline.settings.points)] = average_metrics(dense).to_json()
+        if oracle:
+            summary.metrics["oracle"] = average_metrics(oracle).to_json()
+    point_rows = [e.points for e in evaluations if e is not None and e.points is not None]
+    if point_rows:
+        summary.point_accuracy = aggregate_point_accuracy(point_rows)
+    # frames.jsonl and metrics.json appear only now, complete, after every frame succeeded
+    outputs.finish(header, records, summary if sequence.has_gt_depth else None)
+    log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
+             summary.seconds)
+    return summary
+
+
+def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameResult], n: int) -> dict:
+    """Results with depth for the leading frames that had none, from a backward pass.
+
+    The leading frames are those before the first frame with depth whose failure is about
+    pairing or points (not a missing disparity). A fresh pipeline with the same settings
+    processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
+    frames beyond the last leading frame, so each leading frame meets keyframes from its
+    future. Returns ``{index: (frame, FrameResult)}`` for the frames that now have depth.
+    """
+    first_ok = next((i for i in range(n) if results[i].has_depth), None)
+    if first_ok is None or first_ok == 0:
+        return {}
+    lead = [i for i in range(first_ok) if results[i].status != FrameStatus.NO_DISPARITY]
+    if not lead:
+        return {}
+    backward = pipeline.fresh()
+    last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
+    out = {}
+    for i in range(last, -1, -1):
+        t = time.perf_counter()
+        frame = sequence[i]
+        load = time.perf_counter() - t
+        res = backward.process(frame)
+        res.timings["load"] = load
+        if i in lead and res.depth is not None:
+            out[i] = (frame, res)
+    log.info("backfill: %d of %d leading frames got depth from later keyframes", len(out), len(lead))
+    return out

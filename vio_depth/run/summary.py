@@ -1,0 +1,63 @@
+"""What a whole run did: :class:`RunSummary` (``metrics.json``) and the printed table."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+
+@dataclass
+class RunSummary:
+    """What a run did.
+
+    Attributes:
+        frames_in_sequence / frames_processed / frames_with_depth: counts.
+        status_counts: frames per :class:`~vio_depth.pipeline.FrameStatus` value.
+        metrics: row name -> frame-averaged dense metrics: the point source (``sfm``,
+            ``lidar:16``...) and ``oracle``; empty without ground-truth depth.
+        point_accuracy: medians over frames of the points' accuracy, or None.
+        seconds: wall time of the run.
+        disparity_kind: ``files``, ``simulated``, ``model`` or ``array``.
+        run: the run header (version, command line, settings; :class:`~vio_depth.run.record.RunHeader`).
+    """
+
+    frames_in_sequence: int
+    frames_processed: int
+    frames_with_depth: int
+    status_counts: dict[str, int]
+    metrics: dict[str, dict] = field(default_factory=dict)
+    point_accuracy: dict | None = None
+    seconds: float = 0.0
+    disparity_kind: str = ""
+    run: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def format_table(summary: RunSummary) -> str:
+    """The printed results table: a row for the point source (``sfm``, ``lidar:16``...) and ``oracle``."""
+    lines = []
+    if summary.metrics:
+        head = f"{'':10s} {'delta1':>8s} {'AbsRel':>8s} {'RMSE':>8s} {'frames evaluated':>17s} {'frames in sequence':>19s}"
+        lines.append(head)
+        for name, m in summary.metrics.items():
+            lines.append(
+                f"{name:10s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
+                f"{m['n_frames']:17d} {summary.frames_in_sequence:19d}"
+            )
+    lines.append(
+        f"metric depth for {summary.frames_with_depth} of {summary.frames_processed} processed frames "
+        f"({summary.frames_in_sequence} in sequence); statuses: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(summary.status_counts.items()))
+    )
+    if summary.point_accuracy and summary.point_accuracy.get("frames"):
+        p = summary.point_accuracy
+        lines.append(
+            f"triangulated points vs ground truth: median |z-z_gt|/z_gt {p['rel_err_median_of_frames']:.3f}, "
+            f"p90 {p['rel_err_p90_median_of_frames']:.3f} (medians over {p['frames']} frames, "
+            f"{p['points_per_frame_median']:.0f} points/frame)"
+        )
+    if summary.disparity_kind == "simulated":
+        lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
+    return "\n".join(lines)
