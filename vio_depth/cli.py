@@ -2,6 +2,7 @@
 
     vio-depth run SEQ --out DIR [--matcher sift] [--max-frames N] [--disparity DIR] ...
     vio-depth presets
+    vio-depth report OUT_DIR
 
 Known errors (bad input, unknown names, missing optional packages) print one line on
 stderr and exit with code 1; no traceback, no half-written output file.
@@ -57,8 +58,30 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="seed of RANSAC and random reference points")
     r.add_argument("--progress", dest="progress", action="store_true", default=None, help="force a progress bar")
     r.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    # --- issue 13: optional outputs (vio_depth.export) and the report (vio_depth.report) ---
+    o = r.add_argument_group("optional outputs")
+    o.add_argument("--save-npy", action="store_true",
+                   help="also write depth_npy/<stem>.npy: float32 metres, NaN = invalid (exact, no 256 m cap)")
+    o.add_argument("--save-preview", action="store_true",
+                   help="also write preview/<stem>.png (colourised depth) and, with ground truth, "
+                        "error/<stem>.png (signed relative error)")
+    o.add_argument("--preview-range", default=None, metavar="MIN:MAX",
+                   help="depth range of the preview colours in metres (default: one range per run)")
+    o.add_argument("--preview-colormap", default="turbo", help="turbo (default), viridis, inferno, magma, plasma, cividis")
+    o.add_argument("--save-ply", action="append", default=None, metavar="SPEC",
+                   help="point clouds (PLY, world frame): sparse (per-frame points + merged map "
+                        "ply/sparse_map.ply), dense[:STRIDE] (back-projected depth, every STRIDE-th pixel, default 4); "
+                        "comma-separated or repeated")
+    o.add_argument("--ply-frames", default=None, metavar="LIST",
+                   help="frames that get dense clouds, e.g. 0,50,100 or 0:130:10 (default: all with depth)")
+    o.add_argument("--report", action="store_true",
+                   help="write thumbnails and the run report OUT/report/index.html (+ report.md); needs matplotlib")
 
     sub.add_parser("presets", help="list matcher, pairing, pose-source and format names")
+
+    rep = sub.add_parser("report", help="write an HTML + Markdown report of a finished run")
+    rep.add_argument("out_dir", help="the --out folder of a vio-depth run")
+    rep.add_argument("--to", default=None, metavar="DIR", help="report folder (default: OUT_DIR/report)")
     return p
 
 
@@ -125,6 +148,9 @@ def _cmd_run(args) -> int:
     rescaler = RescalerSettings.default(seed=args.seed, temporal=not args.no_temporal)
     settings = PipelineSettings(matcher=args.matcher, device=args.device, pairing=pairing, rescaler=rescaler,
                                 points=args.points, points_seed=args.seed)
+    export = _export_settings(args)  # issue 13: bad flag values fail before anything is read
+    if args.report:
+        _require_matplotlib()
     # Check the first frame's inputs before anything is written.
     first = sequence[0]
     first.image()
@@ -133,8 +159,60 @@ def _cmd_run(args) -> int:
     pipeline = Pipeline(settings, pose_source, disparity)
     summary = run_sequence(sequence, pipeline, args.out, max_frames=args.max_frames, uncertainty=args.uncertainty,
                            max_eval_depth=args.max_depth, progress=args.progress,
-                           backfill=not args.no_backfill)
+                           backfill=not args.no_backfill, export=export)
     print(format_table(summary))
+    if args.report:  # issue 13
+        from .report import build_report
+
+        result = build_report(args.out, run_info=_run_info(settings, args.argv))
+        print(f"report: {result.html}")
+    return 0
+
+
+# --- issue 13: optional outputs and the report ------------------------------------------
+def _export_settings(args):
+    """:class:`vio_depth.export.ExportSettings` from the run flags (None when none is set)."""
+    from .export import ExportSettings, PreviewSettings, parse_depth_range, parse_ply_spec
+
+    if args.ply_frames is not None and not args.save_ply:
+        raise _usage("--ply-frames needs --save-ply dense[:STRIDE]")
+    style = PreviewSettings(colormap=args.preview_colormap,
+                            depth_range=None if args.preview_range is None else parse_depth_range(args.preview_range))
+    ply = parse_ply_spec(args.save_ply or [], frames=args.ply_frames)
+    settings = ExportSettings(npy=args.save_npy, preview=style if args.save_preview else None, ply=ply,
+                              thumbnails=args.report, preview_style=style)
+    return settings if settings.any else None
+
+
+def _require_matplotlib() -> None:
+    import importlib.util
+
+    from vio_core.errors import MissingDependencyError
+
+    if importlib.util.find_spec("matplotlib") is None:
+        raise MissingDependencyError("matplotlib", "report", "the run report (--report)")
+
+
+def _run_info(settings, argv) -> dict:
+    """Version, command line and settings of this run, for the report."""
+    import dataclasses
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        ver = version("vio-depth")
+    except PackageNotFoundError:  # pragma: no cover - not installed
+        ver = None
+    return {"version": ver, "command_line": ["vio-depth"] + list(argv),
+            "settings": dataclasses.asdict(settings)}
+
+
+def _cmd_report(args) -> int:
+    from .report import build_report
+
+    result = build_report(args.out_dir, report_dir=args.to)
+    print(f"report: {result.html} (and {result.markdown.name})")
+    for note in result.omitted:
+        print(f"  {note}")
     return 0
 
 
@@ -147,10 +225,14 @@ def _usage(msg: str) -> _UsageError:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     args = _build_parser().parse_args(argv)
+    args.argv = argv  # issue 13: the command line, for the report
     try:
         if args.command == "presets":
             return _cmd_presets()
+        if args.command == "report":  # issue 13
+            return _cmd_report(args)
         return _cmd_run(args)
     except VioDepthError as exc:
         print(f"vio-depth: error: {exc}", file=sys.stderr)

@@ -150,6 +150,10 @@ class Pipeline:
         res.inliers = int(outcome.n_inliers)
         res.disparity = disparity
         res.points_uv, res.points_depth = uv[inside], depth[inside]
+        # issue 13 (exports): per-point uncertainty and inlier flags of this frame's own fit
+        res.points_sigma = None if sigma is None else sigma[inside]
+        own = outcome.scale_only if outcome.scale_only is not None and outcome.scale_only.ok else outcome.raw
+        res.points_inlier = own.inliers if len(own.inliers) == len(res.points_depth) else None
         rescale_status = outcome.frame_status
         if pair.status == FrameStatus.OK or rescale_status.has_depth:
             # The pair worked (the fit decides), or a fallback gave depth despite a failed pair.
@@ -159,6 +163,9 @@ class Pipeline:
             fit = outcome.fit
             res.fit = fit
             res.alpha, res.beta = float(fit.alpha), float(fit.beta)
+            # issue 13 (report): 1-sigma of the (alpha, beta) actually used (filtered / fallback), None if unknown
+            res.extra["sigma_alpha"] = fit.sigma_alpha if np.isfinite(fit.sigma_alpha) else None
+            res.extra["sigma_beta"] = fit.sigma_beta if np.isfinite(fit.sigma_beta) else None
             res.r2 = None if fit.r2 is None or not np.isfinite(fit.r2) else float(fit.r2)
             res.depth = outcome.metric_depth(disparity)
         return res

@@ -41,6 +41,7 @@ class RunSummary:
     point_accuracy: dict | None = None
     seconds: float = 0.0
     disparity_kind: str = ""
+    outputs: dict = field(default_factory=dict)  # issue 13: what the optional exports wrote
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -69,6 +70,7 @@ def run_sequence(
     max_eval_depth: float = 80.0,
     progress: bool | None = None,
     backfill: bool = True,
+    export=None,
 ) -> RunSummary:
     """Process ``sequence`` (or its first ``max_frames`` frames) and write outputs to ``out_dir``.
 
@@ -81,6 +83,8 @@ def run_sequence(
             forward ones; they are marked ``"backfilled": true`` in ``frames.jsonl``.
             Needs a pose source that works in both directions (``gt``; ``imu`` integrates
             forward only, so its backward pairs fail and nothing changes).
+        export: :class:`vio_depth.export.ExportSettings` of the optional outputs (float
+            ``.npy``, previews, PLY clouds, report thumbnails), or None.
 
     Raises:
         InputError: unreadable inputs; partially written outputs are removed.
@@ -97,10 +101,19 @@ def run_sequence(
     source = pipeline.settings.points
     # triangulated points are checked against ground truth; reference points come from it
     point_accuracy_fn = _point_accuracy_fn() if sequence.has_gt_depth and source == "sfm" else None
+    # --- issue 13: optional exports (the lead ports this into run/outputs.py) ---
+    exporter = None
+    if export is not None and export.any:
+        from .export import RunExporter
+
+        exporter = RunExporter(out_dir, export)
 
     def record(frame, res: FrameResult) -> _FrameRecord:
-        return _record(frame, res, sequence.has_gt_depth, depth_dir, sigma_dir if uncertainty else None,
-                       min_eval_depth, max_eval_depth, point_accuracy_fn)
+        rec = _record(frame, res, sequence.has_gt_depth, depth_dir, sigma_dir if uncertainty else None,
+                      min_eval_depth, max_eval_depth, point_accuracy_fn)
+        if exporter is not None:  # issue 13
+            exporter.add_frame(frame, res)
+        return rec
 
     records: dict[int, _FrameRecord] = {}
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
@@ -139,6 +152,8 @@ def run_sequence(
             summary.metrics["oracle"] = average_metrics(oracle_metrics).to_json()
     if point_rows:
         summary.point_accuracy = _aggregate_points(point_rows)
+    if exporter is not None:  # issue 13: previews, merged map, thumbnails need the whole run
+        summary.outputs = exporter.finish(sequence, [r.json for r in ordered]).to_json()
     # frames.jsonl and metrics.json appear only now, complete, after every frame succeeded
     if sequence.has_gt_depth:
         write_bytes_atomic(out_dir / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
@@ -251,6 +266,10 @@ def format_table(summary: RunSummary) -> str:
             f"p90 {p['rel_err_p90_median_of_frames']:.3f} (medians over {p['frames']} frames, "
             f"{p['points_per_frame_median']:.0f} points/frame)"
         )
+    if summary.outputs.get("counts"):  # issue 13
+        lines.append("also wrote: " + ", ".join(f"{k} {v}" for k, v in summary.outputs["counts"].items()))
+    for note in summary.outputs.get("notes", []):
+        lines.append(f"note: {note}")
     if summary.disparity_kind == "simulated":
         lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
     return "\n".join(lines)

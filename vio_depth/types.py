@@ -125,7 +125,9 @@ class FrameResult:
 
     ``depth`` is (H, W) float32 metres with NaN where invalid (or None without metric depth);
     ``disparity`` the (H, W) input disparity; ``fit`` the ``AffineFit`` used;
-    ``points_uv`` (N, 2) px / ``points_depth`` (N,) metres the metric points fed to the fit.
+    ``points_uv`` (N, 2) raw px / ``points_depth`` (N,) metres the metric points fed to the fit,
+    ``points_sigma`` (N,) metres their 1-sigma depth (None when unknown) and ``points_inlier``
+    (N,) bool whether each is an inlier of this frame's own fit (full or scale-only).
     ``extra`` holds JSON-able diagnostics written to ``frames.jsonl``.
     """
 
@@ -146,6 +148,9 @@ class FrameResult:
     fit: object = field(default=None, repr=False)
     points_uv: np.ndarray | None = field(default=None, repr=False)
     points_depth: np.ndarray | None = field(default=None, repr=False)
+    # issue 13 (exports): per-point 1-sigma depth in metres (None: unknown) and fit-inlier flags, (N,) each
+    points_sigma: np.ndarray | None = field(default=None, repr=False)
+    points_inlier: np.ndarray | None = field(default=None, repr=False)
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
