@@ -92,8 +92,13 @@ def _html_img(im: Image) -> str:
     return f'<img src="{html.escape(im.src)}" alt="{html.escape(im.alt)}">'
 
 
+def _text(s: str) -> str:
+    """Escape text content (quotes need no escaping outside attributes)."""
+    return html.escape(s, quote=False)
+
+
 def _html_block(b) -> str:
-    e = html.escape
+    e = _text
     if isinstance(b, Text):
         return f"<p>{e(b.text)}</p>"
     if isinstance(b, Note):
