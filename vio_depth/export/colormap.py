@@ -2,7 +2,7 @@
 
 A LUT is a (256, 3) uint8 RGB table. Sequential maps (turbo, viridis, ...) come from
 OpenCV's ``applyColorMap``; the diverging map of the error previews ("coolwarm": blue ->
-light grey -> red) is built here. Depth maps to a LUT index through a fixed range
+light grey -> red, 255 distinct levels) is built here. Depth maps to a LUT index through a fixed range
 ``[vmin, vmax]`` metres on a log (default) or linear axis, **near = index 255** (turbo:
 red, viridis: yellow), far = index 0; :func:`depth_from_rgb` inverts the mapping (the
 nearest LUT colour), which is how tests check that a preview's colour means its depth.
@@ -28,6 +28,8 @@ _CV2_MAPS = {
     "cividis": "COLORMAP_CIVIDIS",
 }
 SCALES = ("log", "linear")
+#: distinct levels of the diverging "coolwarm" map of error previews (indices 0..254, 127 = zero)
+ERROR_LEVELS = 255
 
 
 def available_colormaps() -> list[str]:
@@ -38,12 +40,14 @@ def available_colormaps() -> list[str]:
 @lru_cache(maxsize=None)
 def _lut(name: str) -> np.ndarray:
     if name == "coolwarm":
-        # blue (59, 76, 192) -> light grey (221, 221, 221) -> red (180, 4, 38), linear in RGB
+        # blue (59, 76, 192) -> light grey (221, 221, 221) at 127 -> red (180, 4, 38) at 254, linear
+        # in RGB; 255 levels (entry 255 repeats 254) so that an error map plus its invalid colour
+        # fits an 8-bit palette PNG, and zero error has an entry of its own
         ends = np.array([[59, 76, 192], [221, 221, 221], [180, 4, 38]], dtype=np.float64)
-        t = np.linspace(0.0, 2.0, 256)[:, None]
+        t = np.linspace(0.0, 2.0, ERROR_LEVELS)[:, None]
         lo = np.clip(1.0 - t, 0.0, 1.0) * ends[0] + np.clip(1.0 - np.abs(t - 1.0), 0.0, 1.0) * ends[1]
-        lut = lo + np.clip(t - 1.0, 0.0, 1.0) * ends[2]
-        return np.rint(lut).astype(np.uint8)
+        lut = np.rint(lo + np.clip(t - 1.0, 0.0, 1.0) * ends[2]).astype(np.uint8)
+        return np.concatenate([lut, lut[-1:]])
     code = getattr(cv2, lookup("colormap", name, _CV2_MAPS))
     ramp = np.arange(256, dtype=np.uint8)[:, None]
     return np.ascontiguousarray(cv2.applyColorMap(ramp, code)[:, 0, ::-1])  # BGR -> RGB

@@ -12,8 +12,8 @@ the run's output folder (each written under a temporary name and renamed):
 * ``ply/sparse/<stem>.ply``    the frame's metric points, world frame (``ply.sparse``)
 * ``ply/sparse_map.ply``       all frames' points merged, world frame (``ply.sparse``)
 * ``ply/dense/<stem>.ply``     back-projected depth map, world frame (``ply.dense_stride``)
-* ``thumbs/<stem>_{image,preview,error}.jpg`` and ``thumbs/legend.json``: the best,
-  median and worst frames, small JPEGs, for ``vio-depth report`` (``thumbnails``)
+* ``thumbs/<stem>_image.jpg``, ``thumbs/<stem>_{preview,error}.png`` and ``thumbs/legend.json``:
+  the best, median and worst frames, small, for ``vio-depth report`` (``thumbnails``)
 
 Previews are written in :meth:`finish`, because the run-wide colour range is known only
 then; their depth comes from ``depth_npy/`` when written, else from ``depth/<stem>.png``
@@ -31,6 +31,7 @@ import numpy as np
 
 from ..io.depth_png import read_depth_png, write_bytes_atomic
 from ..rescale import depth_sigma_map
+from .colormap import ERROR_LEVELS
 from .npy import read_depth_npy, write_depth_npy
 from .ply import PointCloud, dense_cloud, sparse_cloud, write_ply
 from .preview import (ERROR_COLORMAP, PreviewSettings, depth_percentiles, depth_preview, error_preview,
@@ -67,6 +68,7 @@ def legend_json(style: PreviewSettings, depth_range: tuple[float, float]) -> dic
         "invalid_rgb": [int(c) for c in style.invalid_rgb],
         "error_colormap": ERROR_COLORMAP,
         "error_range": float(style.error_range),
+        "error_levels": ERROR_LEVELS,
         "error_definition": "(depth - gt) / gt; blue = too near, red = too far",
     }
 
@@ -215,11 +217,11 @@ class RunExporter:
             frame = sequence[i]
             depth = self._depth(stem)
             write_jpeg_rgb(folder / f"{stem}_image.jpg", resize_to_width(frame.image(), width, False))
-            write_jpeg_rgb(folder / f"{stem}_preview.jpg",
-                           resize_to_width(depth_preview(depth, depth_range, style), width, True))
+            write_png_rgb(folder / f"{stem}_preview.png",
+                          resize_to_width(depth_preview(depth, depth_range, style), width, True))
             gt = frame.gt_depth() if sequence.has_gt_depth else None
             if gt is not None:
-                write_jpeg_rgb(folder / f"{stem}_error.jpg", resize_to_width(error_preview(depth, gt, style), width, True))
+                write_png_rgb(folder / f"{stem}_error.png", resize_to_width(error_preview(depth, gt, style), width, True))
         write_bytes_atomic(folder / "legend.json",
                            (json.dumps(legend_json(style, depth_range), indent=2) + "\n").encode())
         self.report.add("thumbnails", len(selection.frames))

@@ -13,6 +13,8 @@ pixels without a valid depth or ground truth are ``invalid_rgb``.
 
 from __future__ import annotations
 
+import struct
+import zlib
 from dataclasses import dataclass
 
 import cv2
@@ -23,7 +25,7 @@ from vio_core.errors import InputError, SettingsError, UnknownNameError
 
 from ..io.depth_png import write_bytes_atomic
 
-from .colormap import SCALES, available_colormaps, colormap_lut, colourise, depth_to_index
+from .colormap import ERROR_LEVELS, SCALES, available_colormaps, colormap_lut, colourise, depth_to_index
 
 ERROR_COLORMAP = "coolwarm"
 
@@ -38,7 +40,10 @@ class PreviewSettings:
             0.5-7 m rooms alike) or "linear".
         depth_range: fixed ``(vmin, vmax)`` metres, or None for one range per run from the
             depth maps' percentiles (:func:`run_depth_range`).
-        percentiles: low/high percentiles of each frame's valid depth used for the run range.
+        percentiles: low/high percentiles of each frame's valid depth used for the run range;
+            95 (not 98-99) because sky with near-zero disparity gets depths of hundreds of
+            metres or more (5 % of the street sample's pixels), which would squeeze the scene
+            into a few colours; such pixels get the far-end colour.
         invalid_rgb: colour of invalid pixels.
         error_range: relative error at the ends of the error colormap (0.2 = +-20 %).
     """
@@ -46,7 +51,7 @@ class PreviewSettings:
     colormap: str = "turbo"
     scale: str = "log"
     depth_range: tuple[float, float] | None = None
-    percentiles: tuple[float, float] = (2.0, 98.0)
+    percentiles: tuple[float, float] = (2.0, 95.0)
     invalid_rgb: tuple[int, int, int] = (0, 0, 0)
     error_range: float = 0.2
 
@@ -83,7 +88,7 @@ def parse_depth_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def depth_percentiles(depth, percentiles=(2.0, 98.0), step: int = 4) -> tuple[float, float] | None:
+def depth_percentiles(depth, percentiles=(2.0, 95.0), step: int = 4) -> tuple[float, float] | None:
     """Low/high percentiles (metres) of the valid pixels of ``depth: (H, W)`` metres.
 
     Every ``step``-th pixel in each direction is used (enough for a colour range).
@@ -140,27 +145,59 @@ def relative_error(depth, gt_depth) -> np.ndarray:
 def error_preview(depth, gt_depth, settings: PreviewSettings = PreviewSettings()) -> np.ndarray:
     """Colourise the signed relative error of ``depth`` against ``gt_depth`` (both (H, W) metres).
 
-    Returns ``(H, W, 3)`` uint8 RGB: coolwarm over ``[-error_range, +error_range]``
-    (index 0 = ``-error_range``, blue, depth too small; 255 = too large, red), clipped;
+    Returns ``(H, W, 3)`` uint8 RGB: coolwarm over ``[-error_range, +error_range]`` in
+    :data:`~vio_depth.export.colormap.ERROR_LEVELS` steps (index 0 = ``-error_range``, blue,
+    depth too small; 127 = exact, grey; 254 = ``+error_range``, red, too large), clipped;
     pixels without both depths are ``invalid_rgb``.
     """
     err = relative_error(depth, gt_depth)
     valid = np.isfinite(err)
     r = settings.error_range
     t = (np.clip(np.where(valid, err, 0.0), -r, r) + r) / (2 * r)
-    index = np.rint(t * 255.0).astype(np.uint8)
+    index = np.rint(t * (ERROR_LEVELS - 1)).astype(np.uint8)
     return colourise(index, valid, colormap_lut(ERROR_COLORMAP), settings.invalid_rgb)
 
 
 def encode_png_rgb(rgb) -> bytes:
-    """PNG bytes of an ``(H, W, 3)`` uint8 RGB image."""
+    """Lossless PNG bytes of an ``(H, W, 3)`` uint8 RGB image.
+
+    Colour-coded maps use at most a LUT's 256 colours (plus the invalid colour): when the
+    image has <= 256 distinct colours it is stored as an 8-bit palette PNG
+    (:func:`encode_png_indexed`, a third of the size of RGB for noisy depth), else as RGB.
+    """
     rgb = check_image("rgb", rgb, channels=3)
     if rgb.dtype != np.uint8:
         raise InputError(f"rgb: expected uint8, got {rgb.dtype}")
+    key = (rgb[..., 0].astype(np.uint32) << 16) | (rgb[..., 1].astype(np.uint32) << 8) | rgb[..., 2]
+    colours, index = np.unique(key.ravel(), return_inverse=True)
+    if len(colours) <= 256:
+        palette = np.stack([(colours >> 16) & 255, (colours >> 8) & 255, colours & 255], axis=1).astype(np.uint8)
+        return encode_png_indexed(index.reshape(key.shape).astype(np.uint8), palette)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9])
     if not ok:  # pragma: no cover - cv2 failure
         raise InputError("cannot encode PNG")
     return buf.tobytes()
+
+
+def encode_png_indexed(index, palette) -> bytes:
+    """8-bit palette PNG bytes: ``index: (H, W)`` uint8 into ``palette: (K, 3)`` uint8 RGB, K <= 256."""
+    index = check_image("index", index)
+    palette = check_array("palette", palette, (None, 3), dtype=None)
+    if index.dtype != np.uint8 or palette.dtype != np.uint8 or not 1 <= len(palette) <= 256:
+        raise InputError("indexed PNG: uint8 index and a uint8 palette of 1..256 colours expected")
+    if int(index.max(initial=0)) >= len(palette):
+        raise InputError("indexed PNG: index beyond the palette")
+    h, w = index.shape
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    rows = np.concatenate([np.zeros((h, 1), np.uint8), index], axis=1)  # filter type 0 per row
+    return (b"\x89PNG\r\n\x1a\n"
+            + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 3, 0, 0, 0))
+            + chunk(b"PLTE", palette.tobytes())
+            + chunk(b"IDAT", zlib.compress(rows.tobytes(), 9))
+            + chunk(b"IEND", b""))
 
 
 def encode_jpeg_rgb(rgb, quality: int = 90) -> bytes:

@@ -26,10 +26,10 @@ import numpy as np
 
 from vio_core.errors import VioDepthError
 
-from ..export.colormap import colormap_lut
+from ..export.colormap import ERROR_LEVELS, colormap_lut
 from ..export.exporter import resize_to_width
 from ..export.preview import (ERROR_COLORMAP, PreviewSettings, depth_percentiles, depth_preview, read_png_rgb,
-                              run_depth_range, write_jpeg_rgb, write_png_rgb)
+                              run_depth_range, write_png_rgb)
 from ..export.selection import has_depth, select_frames
 from ..io.depth_png import read_depth_png, write_bytes_atomic
 from .load import RunData, load_run
@@ -279,14 +279,14 @@ def _frames_section(ctx: _Context) -> Section:
             shutil.copyfile(thumbs / f"{stem}_image.jpg", src / "thumbs" / f"{stem}_image.jpg")
             images[0] = Image(f"thumbs/{stem}_image.jpg", f"image of frame {stem}")
         for k, kind, folder in ((1, "preview", "preview"), (2, "error", "error")):
-            rel = f"thumbs/{stem}_{kind}.jpg"
-            if (thumbs / f"{stem}_{kind}.jpg").is_file():
-                shutil.copyfile(thumbs / f"{stem}_{kind}.jpg", src / rel)
+            rel = f"thumbs/{stem}_{kind}.png"
+            if (thumbs / f"{stem}_{kind}.png").is_file():
+                shutil.copyfile(thumbs / f"{stem}_{kind}.png", src / rel)
             elif (out / folder / f"{stem}.png").is_file():
-                write_jpeg_rgb(src / rel, resize_to_width(read_png_rgb(out / folder / f"{stem}.png"), THUMB_WIDTH, True))
+                write_png_rgb(src / rel, resize_to_width(read_png_rgb(out / folder / f"{stem}.png"), THUMB_WIDTH, True))
             elif kind == "preview" and depth_range is not None and depth_of(stem) is not None:
-                write_jpeg_rgb(src / rel, resize_to_width(depth_preview(depth_of(stem), depth_range, style),
-                                                          THUMB_WIDTH, True))
+                write_png_rgb(src / rel, resize_to_width(depth_preview(depth_of(stem), depth_range, style),
+                                                         THUMB_WIDTH, True))
                 made_from_depth = True
             else:
                 continue
@@ -307,7 +307,7 @@ def _frames_section(ctx: _Context) -> Section:
                             f"rgb{tuple(int(c) for c in style.invalid_rgb)}"
                             + ("; drawn from the 16-bit depth PNGs" if made_from_depth else "")))
     if 2 in keep:
-        ctx.write_rgb("plots/error_legend.png", _legend_strip(colormap_lut(ERROR_COLORMAP), reverse=False))
+        ctx.write_rgb("plots/error_legend.png", _legend_strip(colormap_lut(ERROR_COLORMAP)[:ERROR_LEVELS], reverse=False))
         r = style.error_range
         blocks.append(Image("plots/error_legend.png", "error colour scale",
                             f"error (depth - gt) / gt: {-r:+.0%} (left, blue: too near) to {r:+.0%} "

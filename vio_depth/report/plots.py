@@ -174,10 +174,21 @@ def figure_point_accuracy(run: RunData):
 
 
 def png_bytes(fig) -> bytes:
-    """PNG bytes of ``fig`` at exactly ``figsize * DPI`` pixels."""
+    """PNG bytes of ``fig`` at exactly ``figsize * DPI`` pixels, as a 256-colour palette PNG.
+
+    Line plots hold a few hundred distinct colours (mostly anti-aliasing shades); median-cut
+    quantisation without dithering keeps them visually identical at about 40 % of the size
+    of matplotlib's RGBA PNG. Pillow comes with matplotlib.
+    """
+    from PIL import Image as PILImage
+
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI, facecolor="white")
-    return buf.getvalue()
+    rgb = PILImage.open(io.BytesIO(buf.getvalue())).convert("RGB")
+    out = io.BytesIO()
+    rgb.quantize(colors=256, method=PILImage.Quantize.MEDIANCUT, dither=PILImage.Dither.NONE).save(
+        out, format="PNG", optimize=True)
+    return out.getvalue()
 
 
 def pixel_size(fig) -> tuple[int, int]:

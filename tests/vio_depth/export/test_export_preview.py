@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from vio_core.errors import SettingsError, UnknownNameError
+from vio_depth.export.preview import encode_png_indexed, encode_png_rgb
 from vio_depth.export import (PreviewSettings, available_colormaps, colormap_lut, depth_from_rgb,
                               depth_percentiles, depth_preview, depth_to_index, error_preview, index_to_depth,
                               parse_depth_range, read_png_rgb, relative_error, run_depth_range, write_png_rgb)
@@ -82,8 +83,8 @@ def test_error_preview_sign_and_invalid():
     rgb = error_preview(depth, gt, s)
     lut = colormap_lut("coolwarm")
     assert rgb[0, 0].tolist() == lut[0].tolist()  # -20 %: bluest
-    assert rgb[0, 2].tolist() == lut[255].tolist()  # +20 %: reddest
-    assert abs(int(np.argmin(np.abs(lut.astype(int) - rgb[0, 1]).sum(1))) - 128) <= 1  # 0 %: middle (grey)
+    assert rgb[0, 2].tolist() == lut[254].tolist() == [180, 4, 38]  # +20 %: reddest
+    assert rgb[0, 1].tolist() == lut[127].tolist() == [221, 221, 221]  # 0 %: the grey centre
     assert rgb[1, 0].tolist() == lut[0].tolist()  # -50 % clipped
     assert rgb[1, 1].tolist() == [0, 0, 0] and rgb[1, 2].tolist() == [0, 0, 0]
     err = relative_error(depth, gt)
@@ -103,3 +104,24 @@ def test_settings_and_range_parsing_reject_bad_values():
         PreviewSettings(depth_range=(0.0, 5.0))
     with pytest.raises(SettingsError):
         depth_to_index(np.ones(2), 0.0, 1.0, "log")
+
+
+def test_png_encoding_is_lossless_and_uses_a_palette_when_it_can(tmp_path):
+    import cv2
+
+    rng = np.random.default_rng(5)
+    lut = colormap_lut("turbo")
+    few = lut[rng.integers(0, 256, (30, 41))]  # <= 256 colours: palette PNG
+    many = rng.integers(0, 256, (30, 41, 3), dtype=np.uint8)  # thousands of colours: RGB PNG
+    for rgb in (few, many):
+        data = encode_png_rgb(rgb)
+        back = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+        assert np.array_equal(back, rgb)
+    assert encode_png_rgb(few)[25] == 3 and encode_png_rgb(many)[25] == 2  # IHDR colour type
+    # an error map with invalid pixels has at most 255 + 1 colours: still a palette PNG
+    depth = rng.uniform(5, 15, (30, 41))
+    depth[:3] = np.nan
+    err = error_preview(depth, np.full((30, 41), 10.0), PreviewSettings(error_range=0.5))
+    assert len(np.unique(err.reshape(-1, 3), axis=0)) > 200 and encode_png_rgb(err)[25] == 3
+    with pytest.raises(Exception):
+        encode_png_indexed(np.full((2, 2), 3, np.uint8), lut[:3])

@@ -67,7 +67,7 @@ def test_old_run_without_header_or_ground_truth_degrades_with_notes(tmp_path):
     # thumbnails drawn from the 16-bit depth PNGs, ranked by R² (no ground truth)
     assert "ranked by R²" in html and "drawn from the 16-bit depth PNGs" in html
     thumbs = sorted(p.name for p in (out / "report" / "thumbs").iterdir())
-    assert thumbs == ["000002_preview.jpg", "000004_preview.jpg", "000007_preview.jpg"]
+    assert thumbs == ["000002_preview.png", "000004_preview.png", "000007_preview.png"]
     # the status table lists the frames without depth with their reason
     assert "<td>0–1</td><td>no_pair</td><td>first frame: no keyframe to pair with yet</td>" in html
     for page in (res.html, res.markdown):
