@@ -59,7 +59,7 @@ def select_frames(records) -> FrameSelection | None:
     frames = [r for r in records if has_depth(r) and "stem" in r]
     if not frames:
         return None
-    for key, larger, words in CRITERIA:
+    for key, larger, words in CRITERIA:  # noqa: B007 - the chosen criterion is used after the loop
         scored = [(v, i, r) for i, r in enumerate(frames) if (v := _value(r, key)) is not None]
         if len(scored) * 2 >= len(frames):
             break

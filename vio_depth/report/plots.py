@@ -134,7 +134,7 @@ def figure_status(run: RunData):
     ax.set_yticks([])
     ax.grid(False)
     counts = [int((codes == k).sum()) for k in range(len(names))]
-    ax.legend(handles=[Patch(color=c, label=f"{n} ({k})") for n, c, k in zip(names, colours, counts)],
+    ax.legend(handles=[Patch(color=c, label=f"{n} ({k})") for n, c, k in zip(names, colours, counts, strict=True)],
               fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.75), ncol=min(4, len(names)), frameon=False)
     fig.suptitle("Status per frame", fontsize=9)
     fig.subplots_adjust(left=0.04, right=0.98, top=0.86, bottom=0.52)

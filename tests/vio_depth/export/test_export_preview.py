@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vio_core.errors import SettingsError, UnknownNameError
+from vio_core.errors import InputError, SettingsError, UnknownNameError
 from vio_depth.export.preview import encode_png_indexed, encode_png_rgb
 from vio_depth.export import (PreviewSettings, available_colormaps, colormap_lut, depth_from_rgb,
                               depth_percentiles, depth_preview, depth_to_index, error_preview, index_to_depth,
@@ -123,5 +123,5 @@ def test_png_encoding_is_lossless_and_uses_a_palette_when_it_can(tmp_path):
     depth[:3] = np.nan
     err = error_preview(depth, np.full((30, 41), 10.0), PreviewSettings(error_range=0.5))
     assert len(np.unique(err.reshape(-1, 3), axis=0)) > 200 and encode_png_rgb(err)[25] == 3
-    with pytest.raises(Exception):
+    with pytest.raises(InputError, match="beyond the palette"):
         encode_png_indexed(np.full((2, 2), 3, np.uint8), lut[:3])
