@@ -19,6 +19,8 @@ class RunSummary:
         seconds: wall time of the run.
         disparity_kind: ``files``, ``simulated``, ``model`` or ``array``.
         run: the run header (version, command line, settings; :class:`~vio_depth.run.record.RunHeader`).
+        outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
+        report: path of the report's ``index.html`` when one was written, else "".
     """
 
     frames_in_sequence: int
@@ -30,6 +32,8 @@ class RunSummary:
     seconds: float = 0.0
     disparity_kind: str = ""
     run: dict[str, Any] = field(default_factory=dict)
+    outputs: dict[str, Any] = field(default_factory=dict)
+    report: str = ""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -58,6 +62,12 @@ def format_table(summary: RunSummary) -> str:
             f"p90 {p['rel_err_p90_median_of_frames']:.3f} (medians over {p['frames']} frames, "
             f"{p['points_per_frame_median']:.0f} points/frame)"
         )
+    if summary.outputs.get("counts"):
+        lines.append("also wrote: " + ", ".join(f"{k} {v}" for k, v in summary.outputs["counts"].items()))
+    for note in summary.outputs.get("notes", []):
+        lines.append(f"note: {note}")
+    if summary.report:
+        lines.append(f"report: {summary.report}")
     if summary.disparity_kind == "simulated":
         lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
     return "\n".join(lines)
