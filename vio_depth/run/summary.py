@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 from typing import Any
+
+from .record import read_frames_jsonl
 
 
 @dataclass
@@ -21,6 +25,10 @@ class RunSummary:
         run: the run header (version, command line, settings; :class:`~vio_depth.run.record.RunHeader`).
         outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
         report: path of the report's ``index.html`` when one was written, else "".
+        verdict: whether the run gave enough metric depth (:class:`~vio_depth.run.verdict.RunVerdict`).
+        resumed_frames: frames replayed from an interrupted run (0: not resumed, -1: the
+            finished run was already there); not written to ``metrics.json``, so a resumed
+            run's file equals an uninterrupted one's.
     """
 
     frames_in_sequence: int
@@ -34,9 +42,35 @@ class RunSummary:
     run: dict[str, Any] = field(default_factory=dict)
     outputs: dict[str, Any] = field(default_factory=dict)
     report: str = ""
+    verdict: dict[str, Any] = field(default_factory=dict)
+    resumed_frames: int = 0
 
     def to_json(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        out.pop("resumed_frames")
+        return out
+
+
+def summary_of_folder(out_dir) -> RunSummary:
+    """The :class:`RunSummary` of a finished run folder: its ``metrics.json`` when there is
+    one, else counts rebuilt from ``frames.jsonl``."""
+    out_dir = Path(out_dir)
+    metrics = out_dir / "metrics.json"
+    if metrics.is_file():
+        try:
+            data = json.loads(metrics.read_text(encoding="utf-8"))
+            names = {f.name for f in fields(RunSummary)}
+            return RunSummary(**{k: v for k, v in data.items() if k in names})
+        except (OSError, ValueError, TypeError):
+            pass
+    header, frames = read_frames_jsonl(out_dir / "frames.jsonl")
+    counts: dict[str, int] = {}
+    for f in frames:
+        counts[str(f.get("status"))] = counts.get(str(f.get("status")), 0) + 1
+    seq = (header or {}).get("sequence", {})
+    return RunSummary(frames_in_sequence=int(seq.get("frames", len(frames))), frames_processed=len(frames),
+                      frames_with_depth=sum(f.get("alpha") is not None for f in frames), status_counts=counts,
+                      disparity_kind=(header or {}).get("disparity_kind", ""), run=header or {})
 
 
 def format_table(summary: RunSummary) -> str:
