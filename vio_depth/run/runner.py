@@ -205,7 +205,8 @@ def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameRe
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
     if first_ok is None or first_ok == 0:
         return {}
-    lead = [i for i in range(first_ok) if results[i].status != FrameStatus.NO_DISPARITY]
+    lead = [i for i in range(first_ok)
+            if results[i].status not in (FrameStatus.NO_DISPARITY, FrameStatus.INVALID_DISPARITY)]
     if not lead:
         return {}
     backward = pipeline.fresh()
