@@ -10,6 +10,11 @@ import numpy as np
 from .checks import check_array
 from .errors import InputError
 
+#: largest round-trip error (px) of undistort + distort over the image, see Camera.distortion_problem
+MAX_DISTORTION_ROUNDTRIP_PX = 0.5
+#: the radial factor r_distorted / r_ideal must stay within these bounds over the image
+DISTORTION_FACTOR_RANGE = (0.6, 1.4)
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -19,6 +24,11 @@ class Camera:
     the *raw* images, or is empty for an undistorted (or rectified) camera. Keypoints
     are measured in raw pixel coordinates; :meth:`undistort_points` maps them to the
     ideal pinhole image with the same ``K`` before any geometry is done on them.
+
+    Coefficients must be finite and describe a lens (:meth:`distortion_problem`): the
+    model must map the image one-to-one, be invertible, and scale no pixel's distance from
+    the principal point beyond :data:`DISTORTION_FACTOR_RANGE`; otherwise construction
+    fails, since every point triangulated through such a model is wrong.
     """
 
     width: int
@@ -37,6 +47,56 @@ class Camera:
         if len(self.dist) not in (0, 4, 5, 8):
             raise InputError(f"camera: expected 0, 4, 5 or 8 distortion coefficients, got {len(self.dist)}")
         object.__setattr__(self, "dist", tuple(float(d) for d in self.dist))
+        if not all(np.isfinite(self.dist)):
+            raise InputError(f"camera: distortion coefficients must be finite, got {self.dist}")
+        problem = self.distortion_problem()
+        if problem:
+            raise InputError(f"camera: implausible distortion coefficients {list(self.dist)}: {problem}")
+
+    def distortion_problem(self) -> str:
+        """Why the distortion coefficients cannot describe a lens for this image ("" if they can).
+
+        Checked on a 13 x 13 grid of raw pixels covering the whole image (corners included):
+
+        1. the distorted radius ``r f(r)``, ``f(r) = 1 + k1 r^2 + k2 r^4 + k3 r^6`` (divided by
+           the rational terms of an 8-coefficient model), must increase with the ideal
+           radius ``r`` up to 1.05 x the image's largest ideal radius: a lens maps each ray
+           to one pixel;
+        2. undistorting the grid and distorting it again must return every pixel within
+           :data:`MAX_DISTORTION_ROUNDTRIP_PX` (OpenCV's iterative undistortion converges);
+        3. the radial factor ``f(r)`` must stay within :data:`DISTORTION_FACTOR_RANGE`
+           (0.6 - 1.4) over that range: no pixel's distance from the principal point is
+           scaled by more than 40 %.
+
+        Real lenses pass with a margin: f over the image is 0.73-1.00 for KITTI raw
+        (k1 = -0.37) and EuRoC (k1 = -0.28), 1.00-1.05 for TUM Freiburg 1; coefficients that
+        fail would put triangulated points tens of percent off (issue 12: "every frame ok,
+        points 131 % off"). Tangential terms are covered by checks 2 and 3 only.
+        """
+        if not self.is_distorted:
+            return ""
+        u = np.linspace(0.0, self.width - 1.0, 13)
+        v = np.linspace(0.0, self.height - 1.0, 13)
+        grid = np.stack(np.meshgrid(u, v), -1).reshape(-1, 2)
+        ideal = self.undistort_points(grid)
+        if not np.all(np.isfinite(ideal)):
+            return "undistortion gives non-finite pixels"
+        r_ideal = np.hypot((ideal[:, 0] - self.cx) / self.fx, (ideal[:, 1] - self.cy) / self.fy)
+        r = np.linspace(0.0, 1.05 * float(r_ideal.max()), 400)
+        k = list(self.dist) + [0.0] * (8 - len(self.dist))
+        r2 = r * r
+        radial = (1 + k[0] * r2 + k[1] * r2**2 + k[4] * r2**3) / (1 + k[5] * r2 + k[6] * r2**2 + k[7] * r2**3)
+        if not np.all(np.diff(r * radial) > 0):
+            return "the radial distortion folds over inside the image (not one-to-one)"
+        back = self.distort_points(ideal)
+        roundtrip = float(np.max(np.linalg.norm(back - grid, axis=1)))
+        if not roundtrip <= MAX_DISTORTION_ROUNDTRIP_PX:
+            return f"undistorting and re-distorting moves pixels by up to {roundtrip:.3g} px (not invertible)"
+        lo, hi = DISTORTION_FACTOR_RANGE
+        if not (lo <= float(radial.min()) and float(radial.max()) <= hi):
+            return (f"it scales radii in the image by {float(radial.min()):.2f}-{float(radial.max()):.2f} "
+                    f"(a lens stays within {lo}-{hi})")
+        return ""
 
     @property
     def K(self) -> np.ndarray:

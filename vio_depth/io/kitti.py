@@ -40,7 +40,7 @@ from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import invert_transform
 
-from ..frame import Frame, ImuData
+from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
 from .images import read_rgb_image
 from .kitti_oxts import (
@@ -174,6 +174,9 @@ class KittiRawSequence(Sequence):
         T_w_i_all = oxts_poses(self.packets)
         velocity_all = oxts_velocity_w(self.packets)
         gyro_all, accel_all = oxts_imu_samples(self.packets)
+        problem = imu_sample_problem(gyro_all, accel_all)
+        if problem is not None:
+            raise SequenceFormatError(packet_files[problem[0]], problem[1])
         if settings.retime_packets:
             contiguous = np.all(np.diff(packet_numbers) == 1)
             if not contiguous:

@@ -14,6 +14,8 @@ from typing import Iterable
 
 from tqdm import tqdm
 
+from vio_core.errors import InputError
+
 from .._version import __version__
 from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
 from ..export import RunExporter
@@ -80,7 +82,14 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     n_total = len(sequence)
     n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
     header = run_header(sequence, pipeline, settings, command)
-    plan = plan_run(folder, header.to_json(), [sequence.frame(i).stem for i in range(n)])
+    stems = [sequence.frame(i).stem for i in range(n)]
+    first_of: dict[str, int] = {}
+    for i, stem in enumerate(stems):
+        if stem in first_of:
+            raise InputError(f"{sequence.root}: frames {first_of[stem]} and {i} share the image name {stem!r}; "
+                             "their outputs would overwrite each other")
+        first_of[stem] = i
+    plan = plan_run(folder, header.to_json(), stems)
     if plan.complete:
         log.info("%s already holds this finished run: nothing to resume", folder.out)
         summary = summary_of_folder(folder.out)
