@@ -11,7 +11,7 @@ import numpy as np
 from vio_core.camera import Camera
 from vio_core.errors import SequenceFormatError
 
-from .jpeg import decode_jpeg_checked, is_jpeg
+from .decode import decode_image_checked
 
 
 def read_image_bytes(path) -> bytes:
@@ -34,7 +34,7 @@ def read_rgb_image(path, camera: Camera | None = None) -> np.ndarray:
     """Read an image file as ``(H, W, 3)`` uint8 RGB (grey images are expanded to 3 channels).
 
     JPEG data (recognised by content, whatever the file name) are decoded with libjpeg's
-    corruption warnings turned into errors (:mod:`vio_depth.io.jpeg`).
+    corruption warnings turned into errors (:mod:`vio_depth.io.decode`).
 
     Raises:
         SequenceFormatError: missing/unreadable/undecodable file, a truncated or corrupt
@@ -42,14 +42,9 @@ def read_rgb_image(path, camera: Camera | None = None) -> np.ndarray:
     """
     path = Path(path)
     data = read_image_bytes(path)
-    if is_jpeg(data):
-        image, problem = decode_jpeg_checked(data, cv2.IMREAD_COLOR_RGB)
-        if problem:
-            raise SequenceFormatError(path, problem)
-    else:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB) if data else None
+    image, problem = decode_image_checked(data, cv2.IMREAD_COLOR_RGB)
     if image is None:
-        raise SequenceFormatError(path, "cannot decode image")
+        raise SequenceFormatError(path, problem)
     if camera is not None and image.shape[:2] != (camera.height, camera.width):
         raise SequenceFormatError(
             path, f"image is {image.shape[1]}x{image.shape[0]} but the camera is {camera.width}x{camera.height}")

@@ -1,4 +1,4 @@
-"""JPEG decoding that turns libjpeg's warnings into errors (never a silently wrong frame).
+"""Image decoding that turns the codec's messages into errors (never a silently wrong frame).
 
 libjpeg treats damaged entropy-coded data as *recoverable*: it prints a warning such as
 "Corrupt JPEG data: premature end of data segment" on the process's standard error, fills
@@ -22,6 +22,11 @@ How it is caught (the choice, and why):
 Not detectable by any decoder: a corruption that still decodes as valid compressed data
 (a flipped bit that yields another valid Huffman code). Only a checksum from the producer
 could catch that.
+
+Other formats (PNG) are decoded the same way, watched: libpng prints its errors ("libpng
+error: IDAT: incorrect data check") on stderr before OpenCV returns nothing; the message
+becomes part of the one-line error instead of a second line on stderr. (PNG carries CRCs,
+so a damaged PNG fails to decode rather than decoding wrongly.)
 """
 
 from __future__ import annotations
@@ -101,17 +106,8 @@ def _sink() -> int:
     return _SINK
 
 
-def decode_jpeg_checked(data: bytes, flags: int) -> tuple[np.ndarray | None, str]:
-    """``cv2.imdecode`` of JPEG ``data`` with libjpeg's corruption warnings caught.
-
-    Returns:
-        ``(image or None, problem)``: ``problem`` is "" for a clean decode, else what libjpeg
-        or the structural check reported (the image must then not be used).
-    """
-    problem = jpeg_problem(data)
-    if problem:
-        return None, problem
-    buf = np.frombuffer(data, dtype=np.uint8)
+def _decode_watched(buf: np.ndarray, flags: int) -> tuple[np.ndarray | None, bytes]:
+    """``cv2.imdecode(buf, flags)`` and what the codec wrote to fd 2 meanwhile."""
     with _LOCK:
         sink = _sink()
         os.lseek(sink, 0, os.SEEK_SET)
@@ -131,10 +127,34 @@ def decode_jpeg_checked(data: bytes, flags: int) -> tuple[np.ndarray | None, str
         size = os.lseek(sink, 0, os.SEEK_CUR)
         os.lseek(sink, 0, os.SEEK_SET)
         text = os.read(sink, size) if size else b""
-    found = _CORRUPT.search(text)
-    rest = _CORRUPT.sub(b"", text).strip()
-    if rest:
-        os.write(2, rest + b"\n")
+    return image, text
+
+
+def decode_image_checked(data: bytes, flags: int) -> tuple[np.ndarray | None, str]:
+    """``cv2.imdecode`` of encoded image ``data`` with the codec's messages caught.
+
+    JPEG data (by content) first get the structural check of :func:`jpeg_problem`; libjpeg's
+    corruption warnings make the image an error. For any format, a failed decode reports
+    what the codec printed.
+
+    Returns:
+        ``(image, "")`` for a clean decode, else ``(None, problem)`` (the image must not be
+        used; ``problem`` is "" only when OpenCV returned nothing and the codec said nothing).
+    """
+    if not data:
+        return None, "empty file"
+    jpeg = is_jpeg(data)
+    if jpeg:
+        problem = jpeg_problem(data)
+        if problem:
+            return None, problem
+    image, text = _decode_watched(np.frombuffer(data, dtype=np.uint8), flags)
+    found = _CORRUPT.search(text) if jpeg else None
+    said = b" ".join(text.split()).decode("utf-8", "replace")
     if found:
         return None, f"corrupt JPEG data (libjpeg: {found.group(0).decode('ascii', 'replace').strip()})"
+    if image is None:
+        return None, f"cannot decode image ({said})" if said else "cannot decode image"
+    if text.strip():
+        os.write(2, text.rstrip(b"\n") + b"\n")  # a warning on a good image: passed on
     return image, ""
