@@ -196,7 +196,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     # frames.jsonl and metrics.json are written last, complete, after every frame succeeded
     outputs.finish(header, records, summary if sequence.has_gt_depth else None)
     if settings.report:
-        summary.report = str(build_report(out_dir).html)
+        summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
              summary.seconds)
     return summary

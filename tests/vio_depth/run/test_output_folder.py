@@ -251,3 +251,15 @@ def test_depth_is_readable_after_the_swap(mini_street, tmp_path, capsys):
     assert _run(["run", seq, "--out", out], capsys)[0] == 0
     for p in (out / "depth").glob("*.png"):
         assert read_depth_png(p).max() > 0
+
+
+def test_the_report_names_out_not_the_staging_folder(mini_street, tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    seq = mini_street(3)
+    out = tmp_path / "myrun"
+    rc, table, err = _run(["run", seq, "--out", out, "--report"], capsys)
+    assert rc == 0, err
+    assert f"report: {out / 'report' / 'index.html'}" in table
+    for page in (out / "report").glob("*.*"):
+        text = page.read_text(encoding="utf-8", errors="replace")
+        assert "vio-depth-partial" not in text and "myrun" in text
