@@ -109,7 +109,7 @@ def _argv(draw_pairs, root: Path, seq: Path) -> list[str]:
             path = root / f"c{len(argv)}.toml"
             path.write_text(value, encoding="utf-8", errors="surrogateescape")
             value = str(path)
-        elif isinstance(value, str) and value.startswith("@"):
+        elif flag in ("--disparity-dir", "--model") and value.startswith("@"):
             value = {"@missing": str(root / "missing"), "@file": str(root / "file.txt"),
                      "@empty": str(root / "empty"), "@seq": str(seq)}[value]
         argv.append(value)
