@@ -10,7 +10,6 @@ import numpy as np
 from .checks import check_array
 from .errors import InputError
 
-
 #: distortion models of :class:`Camera` (``model`` field)
 DISTORTION_MODELS = ("radtan", "equidistant")
 
