@@ -1,5 +1,6 @@
 """Evaluation against ground truth: dense depth metrics, the oracle fit, point accuracy,
-and reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``).
+reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``),
+and camera trajectories (TUM files, ATE, RPE).
 
 =====================  ======================================================================
 module                 job
@@ -8,6 +9,7 @@ module                 job
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 =====================  ======================================================================
 """
 
@@ -22,22 +24,46 @@ from .reference_points import (
     parse_points_spec,
     random_samples,
 )
+from .trajectory import (
+    AteResult,
+    CameraTrajectory,
+    ErrorStats,
+    RpeResult,
+    absolute_trajectory_error,
+    associate,
+    pairs_by_path,
+    read_trajectory_tum,
+    relative_pose_error,
+    umeyama_alignment,
+    write_trajectory_tum,
+)
 
 __all__ = [
     "POINT_SPEC_FORMS",
+    "AteResult",
+    "CameraTrajectory",
     "DepthMetrics",
+    "ErrorStats",
     "FrameEvaluation",
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
+    "RpeResult",
+    "absolute_trajectory_error",
     "aggregate_point_accuracy",
+    "associate",
     "average_metrics",
     "compute_metrics",
     "depth_reprojection_errors",
     "evaluate_frame",
     "lidar_beams",
     "oracle_fit",
+    "pairs_by_path",
     "parse_points_spec",
     "point_depth_errors",
     "random_samples",
+    "read_trajectory_tum",
+    "relative_pose_error",
+    "umeyama_alignment",
+    "write_trajectory_tum",
 ]

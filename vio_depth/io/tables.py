@@ -5,7 +5,8 @@ calibration) through :func:`read_text_table`, so blank lines, ``#`` comments, no
 bytes, wrong column counts and non-numeric or non-finite values are handled once and
 always reported as :class:`~vio_core.errors.SequenceFormatError` naming the file and line.
 Format-specific readers built on it live here too when more than one loader uses them:
-the TUM trajectory format (:func:`read_tum_trajectory`, one quaternion tolerance) and
+the TUM trajectory format (:func:`read_tum_trajectory`, one quaternion tolerance;
+:func:`format_tum_trajectory`) and
 pose interpolation in time (:func:`interpolate_poses`).
 """
 
@@ -164,15 +165,22 @@ def read_tum_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
     return rows[:, 0].copy(), T
 
 
-def write_tum_trajectory(path, t, T_w_c, header: str = "camera-to-world, metres") -> None:
-    """Write ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses in TUM format."""
+def format_tum_trajectory(t, T_w_c, header: str = "camera-to-world, metres", time_decimals: int = 6) -> str:
+    """TUM text of ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses: a ``#`` header line,
+    then ``t tx ty tz qx qy qz qw`` per pose (``time_decimals`` decimals of a second)."""
     t = check_array("t", t, (None,), finite=True)
     T_w_c = check_array("T_w_c", T_w_c, (len(t), 4, 4), finite=True)
+    lines = [f"# timestamp tx ty tz qx qy qz qw ({header})\n"]
+    for ti, T in zip(t, T_w_c):
+        lines.append(f"{ti:.{time_decimals}f} " + " ".join(f"{x:.9f}" for x in transform_to_tum(T)) + "\n")
+    return "".join(lines)
+
+
+def write_tum_trajectory(path, t, T_w_c, header: str = "camera-to-world, metres") -> None:
+    """Write ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses in TUM format."""
+    text = format_tum_trajectory(t, T_w_c, header)
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write(f"# timestamp tx ty tz qx qy qz qw ({header})\n")
-        for ti, T in zip(t, T_w_c):
-            v = transform_to_tum(T)
-            fh.write(f"{ti:.6f} " + " ".join(f"{x:.9f}" for x in v) + "\n")
+        fh.write(text)
 
 
 def associate_nearest(t_query, t_ref, max_difference: float) -> np.ndarray:
