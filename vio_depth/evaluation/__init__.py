@@ -1,6 +1,6 @@
 """Evaluation against ground truth: dense depth metrics, the oracle fit, point accuracy,
 reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``),
-and camera trajectories (TUM files, ATE, RPE).
+camera trajectories (TUM files, ATE, RPE) and the IMU pose source's propagation error and NEES.
 
 =====================  ======================================================================
 module                 job
@@ -10,10 +10,12 @@ module                 job
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
+``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 =====================  ======================================================================
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
+from .imu_propagation import PropagationErrors, evaluate_propagation, ground_truth_frames
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
 from .point_accuracy import PointAccuracy, point_depth_errors
 from .reference_points import (
@@ -48,6 +50,7 @@ __all__ = [
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
+    "PropagationErrors",
     "RpeResult",
     "absolute_trajectory_error",
     "aggregate_point_accuracy",
@@ -56,6 +59,8 @@ __all__ = [
     "compute_metrics",
     "depth_reprojection_errors",
     "evaluate_frame",
+    "evaluate_propagation",
+    "ground_truth_frames",
     "lidar_beams",
     "oracle_fit",
     "pairs_by_path",
