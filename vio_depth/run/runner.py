@@ -21,6 +21,7 @@ from .config import RunSettings, config_to_dict
 from .outputs import RunOutputs
 from .record import FrameRecord, RunHeader, frame_record
 from .summary import RunSummary
+from .trajectory import run_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -122,8 +123,11 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     point_rows = [e.points for e in evaluations if e is not None and e.points is not None]
     if point_rows:
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
-    # frames.jsonl and metrics.json appear only now, complete, after every frame succeeded
-    outputs.finish(header, records, summary if sequence.has_gt_depth else None)
+    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m)
+    summary.trajectory = trajectory.to_json()
+    # frames.jsonl, trajectory.tum and metrics.json appear only now, complete, after every frame succeeded
+    outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
+                   trajectory.trajectory)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
              summary.seconds)
     return summary
