@@ -25,6 +25,8 @@ RANKS = {
     "vio_depth.keyframes": 5,
     "vio_depth.rescale": 5,
     "vio_depth.evaluation": 6,
+    "vio_depth.export": 6,
+    "vio_depth.report": 7,
     "vio_depth.pipeline": 7,
     "vio_depth.run": 8,
     "vio_depth.simulate": 9,

@@ -3,6 +3,7 @@
     vio-depth run SEQ --out DIR [--config FILE] [--matcher sift] [--pairing indoor] ...
     vio-depth config [--config FILE] [settings flags] --dump
     vio-depth presets
+    vio-depth report OUT_DIR
 
 Settings come from, in increasing priority: the defaults, ``--config FILE`` (TOML), the
 flags. Known errors (bad input, unknown names, invalid settings, missing optional packages)
@@ -12,19 +13,22 @@ print one line on stderr and exit with code 1; no traceback, no half-written out
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import logging
 import sys
 from dataclasses import replace
 
 from matchers import uses_device
-from vio_core.errors import SettingsError, VioDepthError
+from vio_core.errors import MissingDependencyError, SettingsError, VioDepthError
 from vio_core.settings import override
 
 from ._version import __version__
 from .disparity import DISPARITY_CHOICES, disparity_presets
 from .evaluation import POINT_SPEC_FORMS, parse_points_spec
+from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats, open_sequence
 from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
+from .report import build_report
 from .run import RunSettings, dump_config, format_table, load_config, run_sequence
 
 log = logging.getLogger("vio_depth")
@@ -73,6 +77,24 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     r.add_argument("--uncertainty", action="store_true", default=None,
                    help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
     r.add_argument("--max-depth", type=float, default=None, help="depth cap for evaluation, metres (default 80)")
+    o = p.add_argument_group("optional outputs (docs/outputs.md)")
+    o.add_argument("--save-npy", action="store_true", default=None,
+                   help="also write depth_npy/<stem>.npy: float32 metres, NaN = invalid (exact, no 256 m cap)")
+    o.add_argument("--save-preview", action="store_true", default=None,
+                   help="also write preview/<stem>.png (colourised depth) and, with ground truth, "
+                        "error/<stem>.png (signed relative error)")
+    o.add_argument("--preview-range", default=None, metavar="MIN:MAX",
+                   help="depth range of the preview colours in metres (default: one range per run)")
+    o.add_argument("--preview-colormap", default=None,
+                   help="turbo (default), viridis, inferno, magma, plasma, cividis")
+    o.add_argument("--save-ply", action="append", default=None, metavar="SPEC",
+                   help="point clouds (PLY, world frame): sparse (per-frame points + merged map "
+                        "ply/sparse_map.ply), dense[:STRIDE] (back-projected depth, every STRIDE-th pixel, "
+                        "default 4); comma-separated or repeated")
+    o.add_argument("--ply-frames", default=None, metavar="LIST",
+                   help="frames that get dense clouds, e.g. 0,50,100 or 0:130:10 (default: all with depth)")
+    o.add_argument("--report", action="store_true", default=None,
+                   help="write the run report OUT/report/index.html (+ report.md) at the end; needs matplotlib")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -98,6 +120,10 @@ def _build_parser() -> argparse.ArgumentParser:
     c.add_argument("--dump", action="store_true", required=True, help="print the complete settings as TOML")
 
     sub.add_parser("presets", help="list every preset family and name")
+
+    rep = sub.add_parser("report", help="write an HTML + Markdown report of a finished run (also of old runs)")
+    rep.add_argument("out_dir", help="the --out folder of a vio-depth run")
+    rep.add_argument("--to", default=None, metavar="DIR", help="report folder (default: OUT_DIR/report)")
     return p
 
 
@@ -146,7 +172,31 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
                                             ("max_eval_depth", args.max_depth)) if v is not None}, where="run")
     if args.no_backfill:
         run = replace(run, backfill=False)
-    return s, run
+    return s, _exports_from_args(args, run)
+
+
+def _exports_from_args(args, run: RunSettings) -> RunSettings:
+    """The optional-output flags applied to ``run.export`` (and ``run.report``)."""
+    export = run.export
+    style = export.style
+    if args.preview_colormap is not None or args.preview_range is not None:
+        style = override(style, {k: v for k, v in (("colormap", args.preview_colormap),
+                                                   ("depth_range", None if args.preview_range is None
+                                                    else parse_depth_range(args.preview_range))) if v is not None},
+                         where="preview")
+        export = replace(export, preview_style=style, preview=style if export.preview is not None else None)
+    if args.save_preview:
+        export = replace(export, preview=style)
+    if args.save_npy:
+        export = replace(export, npy=True)
+    if args.save_ply or args.ply_frames is not None:
+        export = replace(export, ply=parse_ply_spec(args.save_ply or [], frames=args.ply_frames))
+    run = replace(run, export=export)
+    if args.report:
+        run = replace(run, report=True)
+    if run.report and importlib.util.find_spec("matplotlib") is None:
+        raise MissingDependencyError("matplotlib", "report", "the run report (--report)")
+    return run
 
 
 def _disparity_from_args(args, s: PipelineSettings) -> PipelineSettings:
@@ -205,6 +255,14 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    result = build_report(args.out_dir, report_dir=args.to)
+    print(f"report: {result.html} (and {result.markdown.name})")
+    for note in result.omitted:
+        print(f"  {note}")
+    return 0
+
+
 def _configure_logging(verbose: int, quiet: bool) -> None:
     """Log records of the ``vio_depth`` logger go to stderr: warnings by default, -v info,
     -vv debug, -q errors only (one handler, also when ``main`` is called repeatedly)."""
@@ -228,6 +286,8 @@ def main(argv=None) -> int:
             return _cmd_presets()
         if args.command == "config":
             return _cmd_config(args)
+        if args.command == "report":
+            return _cmd_report(args)
         return _cmd_run(args)
     except VioDepthError as exc:
         print(f"vio-depth: error: {exc}", file=sys.stderr)

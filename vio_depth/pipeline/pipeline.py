@@ -113,6 +113,8 @@ class Pipeline:
         result.disparity = disparity
         result.points_uv, result.points_depth = points.uv[inside], points.depth[inside]
         result.points_sigma = None if points.sigma is None else points.sigma[inside]
+        own = outcome.scale_only if outcome.scale_only is not None and outcome.scale_only.ok else outcome.raw
+        result.points_inlier = own.inliers if len(own.inliers) == len(result.points_depth) else None
         result.status = decide_frame_status(points.status, outcome.source, outcome.raw.status)
         if result.status.has_depth or points.status == FrameStatus.OK:
             result.reason = "; ".join(r for r in (points.reason, outcome.reason) if r)

@@ -113,7 +113,8 @@ class FrameResult:
         depth: (H, W) float32 metres, NaN = invalid; None without metric depth.
         disparity: (H, W) float32 input disparity (None when absent).
         points_uv: (N, 2) raw px / points_depth: (N,) metres / points_sigma: (N,) metres or
-            None: the metric points fed to the fit.
+            None: the metric points fed to the fit; points_inlier: (N,) bool, inliers of this
+            frame's own fit (full or scale-only), or None.
         timings: seconds per stage (``disparity``, ``features``, ``points``, ``fit``,
             ``depth``; the runner adds ``load``, ``write``, ``evaluation``).
         backfilled: the result comes from the offline backward pass.
@@ -133,6 +134,7 @@ class FrameResult:
     points_uv: np.ndarray | None = field(default=None, repr=False)
     points_depth: np.ndarray | None = field(default=None, repr=False)
     points_sigma: np.ndarray | None = field(default=None, repr=False)
+    points_inlier: np.ndarray | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict)
     backfilled: bool = False
 

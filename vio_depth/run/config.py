@@ -18,13 +18,14 @@ which read back gives the same settings::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 from vio_core.errors import InputError, SettingsError
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
+from ..export import ExportSettings
 from ..pipeline import PipelineSettings
 
 
@@ -44,6 +45,9 @@ class RunSettings:
             directions (``gt``; ``imu`` integrates forward only, so its backward pairs fail).
         rpe_delta_m: metres of path between the pose pairs of the RPE of ``trajectory.tum``
             (:mod:`vio_depth.run.trajectory`).
+        export: the optional outputs (float ``.npy`` depth, previews, PLY clouds, report
+            thumbnails; :class:`~vio_depth.export.ExportSettings`, docs/outputs.md).
+        report: write ``report/index.html`` and ``report.md`` at the end (needs matplotlib).
     """
 
     max_frames: int = 0
@@ -52,6 +56,8 @@ class RunSettings:
     max_eval_depth: float = 80.0
     backfill: bool = True
     rpe_delta_m: float = 1.0
+    export: ExportSettings = field(default_factory=ExportSettings)
+    report: bool = False
 
     def __post_init__(self):
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:

@@ -55,6 +55,8 @@ class FrameRecord:
     inliers: int = 0
     alpha: float | None = None
     beta: float | None = None
+    sigma_alpha: float | None = None
+    sigma_beta: float | None = None
     r2: float | None = None
     fit_source: str | None = None
     fit_diagnostics: dict[str, Any] | None = None
@@ -112,6 +114,7 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         rec.fit_diagnostics = out.raw.to_json()
         if out.fit is not None:
             rec.alpha, rec.beta = float(out.fit.alpha), float(out.fit.beta)
+            rec.sigma_alpha, rec.sigma_beta = _round(out.fit.sigma_alpha), _round(out.fit.sigma_beta)
             rec.r2 = _round(out.fit.r2)
     if evaluation is not None:
         if evaluation.metrics is not None:

@@ -9,14 +9,17 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from dataclasses import replace
 
 from tqdm import tqdm
 
 from .._version import __version__
 from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
+from ..export import RunExporter
 from ..frame import Frame
 from ..io import Sequence
 from ..pipeline import FrameResult, FrameStatus, Pipeline
+from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .outputs import RunOutputs
 from .record import FrameRecord, RunHeader, frame_record
@@ -58,6 +61,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         InputError: unreadable inputs; files already written stay complete (atomic writes).
     """
     outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
+    export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
+    exporter = RunExporter(out_dir, export) if export.any else None
     n_total = len(sequence)
     n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
     t_start = time.perf_counter()
@@ -66,6 +71,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     def finish_frame(frame: Frame, res: FrameResult) -> tuple[FrameRecord, FrameEvaluation | None]:
         t = time.perf_counter()
         outputs.write_frame(res)
+        if exporter is not None:
+            exporter.add_frame(frame, res)
         res.timings["write"] = time.perf_counter() - t
         evaluation = None
         if sequence.has_gt_depth:
@@ -125,9 +132,13 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
     trajectory = run_trajectory(sequence, results, settings.rpe_delta_m)
     summary.trajectory = trajectory.to_json()
+    if exporter is not None:  # previews, the merged map and thumbnails need the whole run
+        summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
     # frames.jsonl, trajectory.tum and metrics.json appear only now, complete, after every frame succeeded
     outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
                    trajectory.trajectory)
+    if settings.report:
+        summary.report = str(build_report(out_dir).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
              summary.seconds)
     return summary

@@ -21,6 +21,8 @@ class RunSummary:
         run: the run header (version, command line, settings; :class:`~vio_depth.run.record.RunHeader`).
         trajectory: ``trajectory.tum``'s pose count and, with ground-truth poses, ATE and RPE
             (:meth:`~vio_depth.run.trajectory.TrajectoryReport.to_json`), or None.
+        outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
+        report: path of the report's ``index.html`` when one was written, else "".
     """
 
     frames_in_sequence: int
@@ -33,6 +35,8 @@ class RunSummary:
     disparity_kind: str = ""
     run: dict[str, Any] = field(default_factory=dict)
     trajectory: dict[str, Any] | None = None
+    outputs: dict[str, Any] = field(default_factory=dict)
+    report: str = ""
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -63,6 +67,12 @@ def format_table(summary: RunSummary) -> str:
         )
     if summary.trajectory is not None:
         lines.append(_trajectory_line(summary.trajectory))
+    if summary.outputs.get("counts"):
+        lines.append("also wrote: " + ", ".join(f"{k} {v}" for k, v in summary.outputs["counts"].items()))
+    for note in summary.outputs.get("notes", []):
+        lines.append(f"note: {note}")
+    if summary.report:
+        lines.append(f"report: {summary.report}")
     if summary.disparity_kind == "simulated":
         lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
     return "\n".join(lines)
