@@ -1,5 +1,6 @@
 """Evaluation against ground truth: dense depth metrics, the oracle fit, point accuracy,
-and reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``).
+reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``),
+camera trajectories (TUM files, ATE, RPE) and the IMU pose source's propagation error and NEES.
 
 =====================  ======================================================================
 module                 job
@@ -8,10 +9,13 @@ module                 job
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
+``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 =====================  ======================================================================
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
+from .imu_propagation import PropagationErrors, evaluate_propagation, ground_truth_frames
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
 from .point_accuracy import PointAccuracy, point_depth_errors
 from .reference_points import (
@@ -22,22 +26,49 @@ from .reference_points import (
     parse_points_spec,
     random_samples,
 )
+from .trajectory import (
+    AteResult,
+    CameraTrajectory,
+    ErrorStats,
+    RpeResult,
+    absolute_trajectory_error,
+    associate,
+    pairs_by_path,
+    read_trajectory_tum,
+    relative_pose_error,
+    umeyama_alignment,
+    write_trajectory_tum,
+)
 
 __all__ = [
     "POINT_SPEC_FORMS",
+    "AteResult",
+    "CameraTrajectory",
     "DepthMetrics",
+    "ErrorStats",
     "FrameEvaluation",
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
+    "PropagationErrors",
+    "RpeResult",
+    "absolute_trajectory_error",
     "aggregate_point_accuracy",
+    "associate",
     "average_metrics",
     "compute_metrics",
     "depth_reprojection_errors",
     "evaluate_frame",
+    "evaluate_propagation",
+    "ground_truth_frames",
     "lidar_beams",
     "oracle_fit",
+    "pairs_by_path",
     "parse_points_spec",
     "point_depth_errors",
     "random_samples",
+    "read_trajectory_tum",
+    "relative_pose_error",
+    "umeyama_alignment",
+    "write_trajectory_tum",
 ]

@@ -11,6 +11,7 @@ module             job
 ``folder``         :class:`OutputFolder`: path checks, the staging folder, the atomic swap into place
 ``resume``         continuing an interrupted run: header and replay checks
 ``verdict``        :func:`judge_run`: "nothing came out", the exit codes
+``trajectory``     the camera poses the run used (``trajectory.tum``), their ATE / RPE
 =================  ============================================================================
 """
 
@@ -21,6 +22,7 @@ from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record,
 from .resume import ResumeError
 from .runner import run_header, run_sequence
 from .summary import RunSummary, format_table, summary_of_folder
+from .trajectory import TrajectoryReport, run_trajectory, used_poses
 from .verdict import (
     EXIT_ERROR,
     EXIT_INTERRUPTED,
@@ -50,6 +52,7 @@ __all__ = [
     "RunOutputs",
     "RunSettings",
     "RunSummary",
+    "TrajectoryReport",
     "config_from_dict",
     "config_to_dict",
     "dump_config",
@@ -63,4 +66,6 @@ __all__ = [
     "judge_run",
     "staging_path",
     "summary_of_folder",
+    "run_trajectory",
+    "used_poses",
 ]

@@ -55,7 +55,7 @@ PSEUDO_FILESYSTEMS = ("/proc", "/sys", "/dev")
 #: per-frame output folders (files named ``<stem>.<ext>``) of the run and its exports
 PER_FRAME_FOLDERS = ("depth", "uncertainty", "depth_npy", "ply/sparse", "ply/dense")
 #: outputs written once at the end of a run (removed from a staging folder before resuming)
-RUN_END_OUTPUTS = ("frames.jsonl", "metrics.json", "preview", "error", "thumbs", "report", "ply/sparse_map.ply")
+RUN_END_OUTPUTS = ("frames.jsonl", "metrics.json", "trajectory.tum", "preview", "error", "thumbs", "report", "ply/sparse_map.ply")
 
 
 class OutputMode(str, enum.Enum):

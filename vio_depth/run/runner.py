@@ -29,6 +29,7 @@ from .outputs import RunOutputs
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
+from .trajectory import run_trajectory
 from .verdict import judge_run
 
 log = logging.getLogger(__name__)
@@ -190,11 +191,14 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     point_rows = [e.points for e in evaluations if e is not None and e.points is not None]
     if point_rows:
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
+    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m)
+    summary.trajectory = trajectory.to_json()
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
     summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
-    # frames.jsonl and metrics.json are written last, complete, after every frame succeeded
-    outputs.finish(header, records, summary if sequence.has_gt_depth else None)
+    # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
+    outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
+                   trajectory.trajectory)
     if settings.report:
         summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
