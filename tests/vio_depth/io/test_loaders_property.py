@@ -1,6 +1,6 @@
 """Issue 12, case 6 of "What to build": property-based tests of every loader.
 
-For each format (native, KITTI raw, 7-Scenes, TUM RGB-D) a small valid sequence folder is
+For each format (native, KITTI raw, 7-Scenes, TUM RGB-D, ASL / EuRoC) a small valid sequence folder is
 built once; hypothesis then generates :data:`EXAMPLES` (1 000) damaged copies of it, each
 with one to three mutations of its files (bytes replaced, truncated or flipped, a text line
 replaced by generated text or numbers such as ``nan``, ``1e308`` and non-ASCII, a line
@@ -78,6 +78,12 @@ def _build(kind: str, base: Path) -> tuple[dict[str, bytes], str]:
     if kind == "7scenes":
         _test_module("test_sevenscenes").write_7scenes(base / "s", n=2)
         return _read_tree(base / "s"), "."
+    if kind == "asl":
+        pytest.importorskip("skimage")  # the generator's textures
+        from vio_depth.simulate.asl import generate_asl_sample
+
+        generate_asl_sample(base / "a" / "room", n_frames=3, scale=0.25)
+        return _read_tree(base / "a"), "room"
     if kind == "tum":
         _test_module("test_tum").write_tum(base / "t" / "rgbd_dataset_freiburg3_x", n=3)  # the name sets the camera
         return _read_tree(base / "t"), "rgbd_dataset_freiburg3_x"
@@ -259,7 +265,7 @@ def base(tmp_path_factory):
     return tmp_path_factory.mktemp("loaders")
 
 
-@pytest.mark.parametrize("kind", ["native", "kitti", "7scenes", "tum"])
+@pytest.mark.parametrize("kind", ["native", "kitti", "7scenes", "tum", "asl"])
 def test_templates_are_valid_sequences(kind, tmp_path):
     files, open_at = template(kind)
     for name, data in files.items():
@@ -295,3 +301,10 @@ def test_7scenes_loader_never_tracebacks_hangs_or_writes(base, mutations):
 @given(mutations=MUTATIONS)
 def test_tum_loader_never_tracebacks_hangs_or_writes(base, mutations):
     check_loader("tum", mutations, base)
+
+
+@pytest.mark.slow
+@SETTINGS
+@given(mutations=MUTATIONS)
+def test_asl_loader_never_tracebacks_hangs_or_writes(base, mutations):
+    check_loader("asl", mutations, base)
