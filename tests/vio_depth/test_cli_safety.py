@@ -184,8 +184,9 @@ def test_nan_pixels_are_masked_and_recorded(mini_street, tmp_path, capsys):
 
     disp = _disparity_dir(seq, tmp_path, holes)
     out = tmp_path / "o"
-    rc, _, err = _run(["run", seq, "--out", out, "--disparity-dir", disp], capsys)
+    rc, table, err = _run(["run", seq, "--out", out, "--disparity-dir", disp], capsys)
     assert rc == 0, err
+    assert "note: sfm has depth on 7" in table and "% of the evaluated pixels" in table  # sky has no GT
     _, frames = read_frames_jsonl(out / "frames.jsonl")
     assert all(f["disparity_valid_fraction"] == pytest.approx(0.75) for f in frames)
     assert all("disparity valid on 75%" in f["reason"] for f in frames if f["alpha"] is not None)

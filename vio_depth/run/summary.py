@@ -76,6 +76,10 @@ def summary_of_folder(out_dir) -> RunSummary:
                       disparity_kind=(header or {}).get("disparity_kind", ""), run=header or {})
 
 
+#: the printed table notes a metrics row whose predictions cover less than this of the evaluated pixels
+COVERAGE_NOTE_BELOW = 0.99
+
+
 def format_table(summary: RunSummary) -> str:
     """The printed results table: a row for the point source (``sfm``, ``lidar:16``...) and ``oracle``."""
     lines = []
@@ -87,6 +91,11 @@ def format_table(summary: RunSummary) -> str:
                 f"{name:10s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
                 f"{m['n_frames']:17d} {summary.frames_in_sequence:19d}"
             )
+        covered = [(name, m["coverage"]) for name, m in summary.metrics.items()
+                   if name != "oracle" and m.get("coverage") is not None and m["coverage"] < COVERAGE_NOTE_BELOW]
+        for name, coverage in covered:
+            lines.append(f"note: {name} has depth on {coverage:.0%} of the evaluated pixels; the metrics count the "
+                         "rest as max depth (e.g. NaN disparity pixels, docs/safety.md)")
     lines.append(
         f"metric depth for {summary.frames_with_depth} of {summary.frames_processed} processed frames "
         f"({summary.frames_in_sequence} in sequence); statuses: "
