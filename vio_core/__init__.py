@@ -26,6 +26,7 @@ from .geometry import (
     transform_points,
     transform_to_tum,
 )
+from .npyfile import load_array
 from .settings import Presets, override, to_plain, toml_dumps, toml_loads
 
 __all__ = [
@@ -42,6 +43,7 @@ __all__ = [
     "check_image",
     "check_transform",
     "invert_transform",
+    "load_array",
     "lookup",
     "make_transform",
     "override",

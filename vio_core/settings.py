@@ -223,6 +223,30 @@ def to_plain(settings) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- TOML
+_TOML_ESCAPES = {"\\": "\\\\", '"': '\\"', "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
+def _toml_string(v: str) -> str:
+    """A TOML basic string: quotes, backslashes and control characters escaped.
+
+    Raises:
+        SettingsError: ``v`` holds a lone surrogate (a path with bytes that are not UTF-8),
+            which TOML cannot represent.
+    """
+    out = []
+    for ch in v:
+        code = ord(ch)
+        if 0xD800 <= code <= 0xDFFF:
+            raise SettingsError(f"cannot write {v!r} to TOML: it holds bytes that are not UTF-8")
+        if ch in _TOML_ESCAPES:
+            out.append(_TOML_ESCAPES[ch])
+        elif code < 0x20 or code == 0x7F:
+            out.append(f"\\u{code:04x}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
 def toml_dumps(data: Mapping[str, Any]) -> str:
     """TOML text of a nested plain dict (scalars, lists of scalars, nested tables)."""
     lines: list[str] = []
@@ -237,7 +261,7 @@ def toml_dumps(data: Mapping[str, Any]) -> str:
                 return "inf" if v > 0 else "-inf"
             return repr(v)
         if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            return _toml_string(v)
         if isinstance(v, (list, tuple)):
             return "[" + ", ".join(scalar(x) for x in v) + "]"
         raise SettingsError(f"cannot write {v!r} to TOML")

@@ -6,8 +6,12 @@
     vio-depth report OUT_DIR
 
 Settings come from, in increasing priority: the defaults, ``--config FILE`` (TOML), the
-flags. Known errors (bad input, unknown names, invalid settings, missing optional packages)
-print one line on stderr and exit with code 1; no traceback, no half-written output file.
+flags. Known errors (bad input, unknown names, invalid settings, missing optional packages,
+an unusable ``--out``) print one line on stderr and exit with code 1; no traceback, and
+``--out`` is untouched (a run writes into a staging folder and moves the result into place
+at the end; ``--overwrite`` replaces an earlier run, ``--resume`` continues an interrupted
+one). Exit codes (docs/safety.md): 0 success, 1 error, 2 malformed command line, 3 the run
+finished but too few frames got metric depth ("nothing came out"), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -29,7 +33,22 @@ from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats, open_sequence
 from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
 from .report import build_report
-from .run import RunSettings, dump_config, format_table, load_config, run_sequence
+from .run import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_NOTHING_CAME_OUT,
+    EXIT_OK,
+    OutputFolder,
+    OutputFolderError,
+    OutputMode,
+    RunSettings,
+    dump_config,
+    format_table,
+    load_config,
+    run_sequence,
+    staging_path,
+)
+from .run.folder import JOURNAL_NAME
 
 log = logging.getLogger("vio_depth")
 
@@ -109,7 +128,13 @@ def _build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="process a sequence and write metric depth maps")
     r.add_argument("sequence", help="sequence folder (native, KITTI raw drive, 7-Scenes or TUM RGB-D)")
-    r.add_argument("--out", required=True, help="output folder (created if missing)")
+    r.add_argument("--out", required=True, help="output folder (created if missing; never inside an input)")
+    mode = r.add_mutually_exclusive_group()
+    mode.add_argument("--overwrite", action="store_true",
+                      help="replace the run already in --out (atomically, at the end) or discard an interrupted one")
+    mode.add_argument("--resume", action="store_true",
+                      help="continue the interrupted run of --out from its last complete frame (same settings "
+                           "and version; the result equals an uninterrupted run)")
     r.add_argument("--format", default=None, help="sequence format (default: auto-detect)")
     _add_settings_flags(r)
     r.add_argument("--progress", dest="progress", action="store_true", default=None, help="force a progress bar")
@@ -239,9 +264,17 @@ def _cmd_config(args) -> int:
     return 0
 
 
+def _run_inputs(args, settings: PipelineSettings) -> list:
+    """The paths a run reads besides the sequence folder (``--out`` may not touch them)."""
+    return [p for p in (settings.disparity.path, args.config) if p]
+
+
 def _cmd_run(args) -> int:
-    # Names and numbers first: a typo fails before any file is read or written.
+    # Names, numbers and the output folder first: a typo fails before any file is read or written.
     settings, run = settings_from_args(args)
+    mode = OutputMode.RESUME if args.resume else OutputMode.OVERWRITE if args.overwrite else OutputMode.NEW
+    inputs = _run_inputs(args, settings)
+    OutputFolder(args.out, mode, inputs=[args.sequence, *inputs]).check_mode()
     sequence = open_sequence(args.sequence, format=args.format)
     pipeline = Pipeline(settings, sequence=sequence)
     # Check the first frame's inputs before anything is written.
@@ -250,9 +283,22 @@ def _cmd_run(args) -> int:
     if settings.disparity.source == "files" and pipeline.disparity_source(first) is None:
         raise SettingsError(f"{pipeline.disparity_source.path_for(first)}: missing "
                             "(expected one <image stem>.npy per frame)")
-    summary = run_sequence(sequence, pipeline, args.out, run, progress=args.progress, command=args.command_line)
+    try:
+        summary = run_sequence(sequence, pipeline, args.out, run, progress=args.progress, command=args.command_line,
+                               mode=mode, inputs=inputs)
+    except (VioDepthError, OSError, KeyboardInterrupt) as exc:
+        staging = staging_path(args.out)
+        if (staging / JOURNAL_NAME).is_file() and not isinstance(exc, OutputFolderError):
+            exc.vio_depth_note = f"; the partial run is kept in {staging} (--resume continues it)"
+        raise
+    if summary.resumed_frames == -1:
+        print(f"{args.out}: already holds this finished run; nothing to resume")
     print(format_table(summary))
-    return 0
+    verdict = summary.verdict
+    if verdict and not verdict.get("ok", True):
+        print(f"vio-depth: {verdict['message']}", file=sys.stderr)
+        return EXIT_NOTHING_CAME_OUT
+    return EXIT_OK
 
 
 def _cmd_report(args) -> int:
@@ -276,8 +322,18 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
     log.setLevel(level)
 
 
+def _safe_streams() -> None:
+    """Paths with bytes that are not UTF-8 reach messages as surrogates: print them escaped."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):
+            pass
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    _safe_streams()
     args = _build_parser().parse_args(argv)
     args.command_line = ["vio-depth", *argv]
     _configure_logging(args.verbose, args.quiet)
@@ -290,11 +346,20 @@ def main(argv=None) -> int:
             return _cmd_report(args)
         return _cmd_run(args)
     except VioDepthError as exc:
-        print(f"vio-depth: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("vio-depth: interrupted", file=sys.stderr)
-        return 130
+        print(f"vio-depth: error: {_one_line(exc)}{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as exc:  # the environment (disk full, a vanished folder): one line, never a traceback
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"vio-depth: error: {where}{exc.strerror or exc}{getattr(exc, 'vio_depth_note', '')}",
+              file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt as exc:
+        print(f"vio-depth: interrupted{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split("\n"))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,7 +12,27 @@ import numpy as np
 
 from vio_core.camera import Camera
 from vio_core.checks import check_array
-from vio_core.errors import ShapeError
+from vio_core.errors import InputError, ShapeError
+
+#: IMU samples beyond these magnitudes are refused as corrupt: MEMS and tactical IMUs
+#: saturate at 35 rad/s (2000 deg/s) and 16-200 g; these bounds leave a wide margin and
+#: keep the preintegration finite (issue 12: 1e30 values ended in NaN rotations)
+MAX_GYRO_RAD_S = 100.0
+MAX_ACCEL_M_S2 = 2000.0
+
+
+def imu_sample_problem(gyro: np.ndarray, accel: np.ndarray) -> tuple[int, str] | None:
+    """``(index, why)`` of the first IMU sample beyond :data:`MAX_GYRO_RAD_S` /
+    :data:`MAX_ACCEL_M_S2` (``gyro``, ``accel``: (M, 3)), or None when all are plausible."""
+    w = np.linalg.norm(gyro, axis=1)
+    a = np.linalg.norm(accel, axis=1)
+    bad = np.flatnonzero(~((w <= MAX_GYRO_RAD_S) & (a <= MAX_ACCEL_M_S2)))
+    if not len(bad):
+        return None
+    i = int(bad[0])
+    if not w[i] <= MAX_GYRO_RAD_S:
+        return i, f"gyro |w| = {w[i]:.3g} rad/s is beyond the plausible {MAX_GYRO_RAD_S:g} rad/s"
+    return i, f"accel |a| = {a[i]:.3g} m/s^2 is beyond the plausible {MAX_ACCEL_M_S2:g} m/s^2"
 
 
 @dataclass(frozen=True)
@@ -50,6 +70,10 @@ class ImuData:
         check_array("imu.T_c_i", self.T_c_i, (4, 4), finite=True)
         if len(t) > 1 and np.any(np.diff(t) <= 0):
             raise ShapeError("imu.t must be strictly increasing")
+        problem = imu_sample_problem(np.asarray(self.gyro, float), np.asarray(self.accel, float))
+        if problem is not None:
+            i, why = problem
+            raise InputError(f"imu sample {i} (t={t[i]:.6f} s): {why}")
 
     def window(self, t0: float, t1: float) -> "ImuData":
         """Samples with ``t0 <= t <= t1`` seconds, plus one on each side when available."""

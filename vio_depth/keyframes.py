@@ -11,6 +11,7 @@ the largest baseline and the per-point parallax check decides which points survi
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Iterator
@@ -51,8 +52,10 @@ class PairingSettings:
     allow_weak_pairs: bool = True
 
     def __post_init__(self):
-        if self.min_rotation_deg <= 0 or self.min_translation_m <= 0:
-            raise SettingsError("pairing thresholds (--min-rotation, --min-translation) must be positive")
+        if not (0 < self.min_rotation_deg <= 180 and 0 < self.min_translation_m < math.inf):
+            raise SettingsError("pairing thresholds must be finite and positive (--min-rotation in (0, 180] "
+                                f"degrees, --min-translation metres), got min_rotation_deg={self.min_rotation_deg!r}, "
+                                f"min_translation_m={self.min_translation_m!r}")
         if not 0 < self.keyframe_fraction <= 1:
             raise SettingsError("keyframe_fraction must be in (0, 1]")
         if self.buffer_size < 1 or self.pairs_per_frame < 1:

@@ -58,3 +58,28 @@ def test_wrong_shapes_name_the_argument():
         CAM.project(np.zeros((3, 2)))
     with pytest.raises(ShapeError, match="K"):
         Camera.from_K(np.eye(2), 10, 10)
+
+
+# --------------------------------------------------------------------------- issue 12: absurd distortion
+@pytest.mark.parametrize("camera", [
+    (640, 480, 517.3, 516.5, 318.6, 255.3, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),  # TUM Freiburg 1
+    (752, 480, 458.654, 457.296, 367.215, 248.375, (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05)),  # EuRoC
+    (1392, 512, 959.79, 956.9, 696.02, 224.18, (-0.3728755, 0.2037299, 0.0022190, 0.0013837, -0.0723372)),  # KITTI
+    (640, 256, 360.0, 360.0, 319.5, 127.5, (0.1, -0.05, 0.001, -0.001)),
+])
+def test_real_lens_distortions_are_accepted(camera):
+    assert Camera(*camera).distortion_problem() == ""
+
+
+@pytest.mark.parametrize("dist, fragment", [
+    ((5.0, -3.0, 0.0, 0.0), "scales radii"),
+    ((1.0, 0.0, 0.0, 0.0), "scales radii"),
+    ((-2.0, 0.0, 0.0, 0.0), "folds over"),
+    ((-0.5, 0.0, 0.0, 0.0), "folds over"),
+    ((0.3, 40.0, 0.0, 0.0, -90.0), "folds over"),
+    ((0.0, 0.0, 0.6, 0.6), "non-finite"),
+    ((float("nan"), 0.0, 0.0, 0.0), "finite"),
+])
+def test_absurd_distortion_coefficients_are_refused(dist, fragment):
+    with pytest.raises(InputError, match=fragment):
+        Camera(640, 256, 360.0, 360.0, 319.5, 127.5, dist)

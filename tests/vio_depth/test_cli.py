@@ -10,7 +10,7 @@ import pytest
 
 from vio_depth.cli import main
 from vio_depth.disparity import DisparitySettings, create_disparity_source
-from vio_depth.run import read_frames_jsonl
+from vio_depth.run import read_frames_jsonl, staging_path
 
 ROOT = Path(__file__).resolve().parents[2]
 STREET = ROOT / "sample_sequences" / "street"
@@ -154,12 +154,14 @@ def test_unreadable_image_mid_run_is_one_line_and_leaves_only_complete_files(tmp
     out = tmp_path / "out"
     rc, _, err = _run(["run", seq_dir, "--out", out, "--max-frames", 8], capsys)
     _assert_one_line_error(rc, err, "000005.jpg", "truncated JPEG")
-    assert not (out / "frames.jsonl").exists() and not list(out.rglob("*.partial"))
-    written = sorted(p.name for p in (out / "depth").glob("*.png"))
+    assert not out.exists()  # --out is untouched; the partial run waits in the staging folder
+    staging = staging_path(out)
+    assert not list(staging.rglob("*.partial"))
+    written = sorted(p.name for p in (staging / "depth").glob("*.png"))
     assert written and max(written) < "000005.png"  # frames before the bad one, each complete
     umask = os.umask(0)
     os.umask(umask)
-    for p in (out / "depth").glob("*.png"):
+    for p in (staging / "depth").glob("*.png"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask
 
 

@@ -9,6 +9,7 @@ module             job
 ``simulation``     the SIMULATED disparity model (:func:`simulate_disparity`)
 ``densify``        densifying sparse real ground truth before simulating
 ``registry``       :class:`DisparitySettings` and :func:`create_disparity_source`
+``validity``       per-frame content checks: valid fraction, constant and inverted maps
 =================  ==========================================================================
 """
 
@@ -24,9 +25,11 @@ from .simulation import (
     simulate_disparity,
 )
 from .sources import FileDisparity, SimulatedDisparitySource
+from .validity import DisparityCheck, check_inversion, check_map_content, rank_correlation
 
 __all__ = [
     "DISPARITY_CHOICES",
+    "DisparityCheck",
     "DisparityKind",
     "DisparitySettings",
     "DisparitySimulation",
@@ -38,10 +41,13 @@ __all__ = [
     "SimulatedDisparity",
     "SimulatedDisparitySource",
     "check_disparity",
+    "check_inversion",
+    "check_map_content",
     "create_disparity_source",
     "densify_depth",
     "disparity_preset",
     "disparity_presets",
+    "rank_correlation",
     "simulate_disparity",
     "simulate_gt_disparity",
     "source_for_spec",

@@ -13,6 +13,7 @@ from .densify import GtDisparitySettings
 from .model import ModelDisparity
 from .simulation import disparity_preset
 from .sources import FileDisparity, SimulatedDisparitySource
+from .validity import MIN_VALID_FRACTION
 
 #: the user's choices (``--disparity``); "sequence" = what the sequence carries
 DISPARITY_CHOICES = ("sequence", "files", "simulated", "model")
@@ -33,6 +34,8 @@ class DisparitySettings:
         simulation: preset name of the simulation model ("default", "clean", "hard").
         model: how the network runs (source "model").
         model_variant: for a renamed original ``.pth`` (see docs/models.md), else "".
+        min_valid_fraction: a map with fewer finite pixels than this fraction gives the
+            frame status ``invalid_disparity`` (:mod:`vio_depth.disparity.validity`).
     """
 
     source: str = "sequence"
@@ -41,6 +44,7 @@ class DisparitySettings:
     simulation: str = "default"
     model: DepthAnythingSettings = field(default_factory=DepthAnythingSettings)
     model_variant: str = ""
+    min_valid_fraction: float = MIN_VALID_FRACTION
 
     def __post_init__(self):
         source = str(self.source).lower()
@@ -54,6 +58,8 @@ class DisparitySettings:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise SettingsError(f"disparity seed must be a non-negative integer, got {self.seed!r}")
         disparity_preset(self.simulation)  # unknown name -> UnknownNameError listing the valid ones
+        if not 0.0 <= self.min_valid_fraction <= 1.0:
+            raise SettingsError(f"disparity min_valid_fraction must be in [0, 1], got {self.min_valid_fraction!r}")
 
 
 def source_for_spec(spec: DisparitySpec, root) -> DisparitySource:

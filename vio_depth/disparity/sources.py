@@ -11,6 +11,7 @@ import numpy as np
 
 from vio_core.checks import check_array
 from vio_core.errors import InputError, SequenceFormatError
+from vio_core.npyfile import load_array
 
 from ..frame import Frame
 from .base import DisparityKind, check_disparity
@@ -44,11 +45,7 @@ class FileDisparity:
             if self.required:
                 raise SequenceFormatError(path, "disparity file not found")
             return None  # reported as status no_disparity for this frame
-        try:
-            d = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: cannot read disparity ({exc})") from None
-        return check_disparity(d, frame, str(path))
+        return check_disparity(load_array(path, "disparity"), frame, str(path))
 
 
 class SimulatedDisparitySource:

@@ -113,13 +113,16 @@ class RunExporter:
             (self.out_dir / f).mkdir(parents=True, exist_ok=True)
 
     # ------------------------------------------------------------------ per frame
-    def add_frame(self, frame, result) -> None:
-        """Write the per-frame outputs of ``result`` (a ``FrameResult``) for ``frame`` (a ``Frame``)."""
+    def add_frame(self, frame, result, write: bool = True) -> None:
+        """Write the per-frame outputs of ``result`` (a ``FrameResult``) for ``frame`` (a ``Frame``).
+
+        ``write=False`` only records what :meth:`finish` needs (a resumed run replays the
+        frames whose files already exist)."""
         s = self.settings
         depth = result.depth
         if depth is not None:
             self._with_depth[frame.index] = frame.stem
-            if s.npy:
+            if s.npy and write:
                 write_depth_npy(self.out_dir / "depth_npy" / f"{frame.stem}.npy", depth)
             if s.preview is not None or s.thumbnails:
                 self._ranges[frame.index] = depth_percentiles(depth, s.style.percentiles)
@@ -134,15 +137,18 @@ class RunExporter:
             self._no_pose.add(frame.index)
             return
         self._no_pose.discard(frame.index)
+        if not (want_sparse or write):
+            return
         image = frame.image()
         if want_sparse:
             cloud = sparse_cloud(frame.camera, frame.T_w_c, uv, result.points_depth, image=image,
                                  sigma_depth=getattr(result, "points_sigma", None),
                                  inlier=getattr(result, "points_inlier", None), frame_index=frame.index)
             self._sparse[frame.index] = cloud
-            write_ply(self.out_dir / "ply" / "sparse" / f"{frame.stem}.ply", cloud,
-                      comments=(f"frame {frame.index} stem {frame.stem}: sparse metric points",))
-        if want_dense:
+            if write:
+                write_ply(self.out_dir / "ply" / "sparse" / f"{frame.stem}.ply", cloud,
+                          comments=(f"frame {frame.index} stem {frame.stem}: sparse metric points",))
+        if want_dense and write:
             sigma = None
             if result.disparity is not None and result.fit is not None:
                 sigma = depth_sigma_map(result.disparity, result.fit)

@@ -13,6 +13,7 @@ import numpy as np
 
 from vio_core.checks import check_array
 from vio_core.errors import InputError
+from vio_core.npyfile import load_array
 
 from ..io.depth_png import write_bytes_atomic
 
@@ -54,10 +55,7 @@ def read_depth_npy(path) -> np.ndarray:
         InputError: missing file, not a 2-D float32 array.
     """
     path = Path(path)
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read depth .npy ({exc})") from None
+    arr = load_array(path, "depth .npy")
     if arr.ndim != 2 or arr.dtype != np.float32:
         raise InputError(f"{path}: expected a 2-D float32 depth map, got {arr.dtype} {arr.shape}")
     return arr

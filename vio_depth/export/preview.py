@@ -24,6 +24,7 @@ from vio_core.checks import check_array, check_image
 from vio_core.errors import InputError, SettingsError, UnknownNameError
 
 from ..io.depth_png import write_bytes_atomic
+from ..io.images import read_rgb_image
 from .colormap import ERROR_LEVELS, SCALES, available_colormaps, colormap_lut, colourise, depth_to_index
 
 ERROR_COLORMAP = "coolwarm"
@@ -230,10 +231,9 @@ def write_jpeg_rgb(path, rgb, quality: int = 90) -> None:
 def read_png_rgb(path) -> np.ndarray:
     """Read a PNG/JPEG as ``(H, W, 3)`` uint8 RGB.
 
+    The bytes are read by Python (any path works), decoded by OpenCV.
+
     Raises:
         InputError: missing or undecodable file.
     """
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise InputError(f"{path}: cannot read image")
-    return np.ascontiguousarray(bgr[..., ::-1])
+    return read_rgb_image(path)

@@ -6,6 +6,7 @@ module              job
 ``base``            :class:`Sequence`, :func:`register_format`, :func:`open_sequence`
 ``tables``          the one line-based text-table reader (``file:line`` errors), TUM trajectories
 ``images``          reading images (bytes by Python, decoding by OpenCV)
+``decode``          decoding with the codec's warnings as errors (corrupt JPEG, damaged PNG)
 ``depth_png``       16-bit depth PNGs (KITTI convention), atomic file writes
 ``rasterize``       depth images from points, depth re-projection between cameras
 ``native``          the native format (reader); ``native_writer`` writes it

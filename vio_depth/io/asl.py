@@ -56,10 +56,11 @@ from vio_core.checks import check_transform
 from vio_core.errors import InputError, SequenceFormatError, SettingsError
 from vio_core.geometry import invert_transform
 
-from ..frame import Frame, ImuData
+from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
+from .decode import decode_image_checked
 from .images import read_image_bytes
-from .tables import QUATERNION_NORM_TOLERANCE, TextTable, interpolate_poses, read_text_table
+from .tables import QUATERNION_NORM_TOLERANCE, TextTable, interpolate_poses, read_text_table, stays_inside
 
 #: ASL distortion model names -> vio_core.Camera models
 DISTORTION_MODEL_NAMES = {"radial-tangential": "radtan", "radtan": "radtan", "equidistant": "equidistant",
@@ -292,9 +293,9 @@ def read_asl_image(path, camera: Camera | None = None) -> np.ndarray:
     """
     path = Path(path)
     data = read_image_bytes(path)
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    image, problem = decode_image_checked(data, cv2.IMREAD_UNCHANGED)  # corrupt JPEG data is an error
     if image is None:
-        raise SequenceFormatError(path, "cannot decode image")
+        raise SequenceFormatError(path, problem)
     if image.dtype == np.uint16:
         image = np.round(image / 257.0).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -324,7 +325,10 @@ def read_asl_imu(folder, T_c_b) -> ImuData:
     data, lines = read_sensor_yaml(yaml_path)
     T_B_I = parse_T_BS(data, yaml_path, lines, required=False)
     noise = {name: _positive(data, key, yaml_path, lines) for name, key in _IMU_NOISE_KEYS.items()}
-    t_ns, values, _ = read_asl_table(folder / "data.csv", 7, "IMU", "timestamp [ns], w_x, w_y, w_z, a_x, a_y, a_z")
+    t_ns, values, table = read_asl_table(folder / "data.csv", 7, "IMU", "timestamp [ns], w_x, w_y, w_z, a_x, a_y, a_z")
+    problem = imu_sample_problem(values[:, :3], values[:, 3:6])
+    if problem is not None:
+        raise table.error(problem[0], problem[1])
     return ImuData(t_ns / 1e9, values[:, :3].copy(), values[:, 3:6].copy(), T_c_b @ T_B_I,
                    gravity_w=ASL_GRAVITY_W, **noise)
 
@@ -393,6 +397,8 @@ class AslSequence(Sequence):
         camera, self.T_B_C = parse_camera_yaml(cam_dir / "sensor.yaml")
         t_ns, names, table = read_asl_images_csv(cam_dir / "data.csv")
         for i, name in enumerate(names):
+            if not stays_inside(name):
+                raise table.error(i, f"image {name!r} points outside the data folder")
             if not (cam_dir / "data" / name).is_file():
                 raise table.error(i, f"image {('data/' + name)!r} not found")
         self._t = t_ns / 1e9

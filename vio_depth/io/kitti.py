@@ -29,7 +29,6 @@ What is read (see docs/datasets.md):
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -39,8 +38,9 @@ import numpy as np
 from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import invert_transform
+from vio_core.npyfile import load_array
 
-from ..frame import Frame, ImuData
+from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
 from .images import read_rgb_image
 from .kitti_oxts import (
@@ -58,14 +58,13 @@ from .kitti_oxts import (
 )
 
 
-def _load_npz_depth(path: Path) -> np.ndarray:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if "velodyne_depth" not in z.files:
-                raise SequenceFormatError(path, f"expected key 'velodyne_depth', found {z.files}")
-            d = np.asarray(z["velodyne_depth"], dtype=np.float32)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise SequenceFormatError(path, f"cannot read projected depth: {exc}") from None
+def _load_npz_depth(path: Path, camera: Camera | None = None) -> np.ndarray:
+    d = load_array(path, "projected depth", key="velodyne_depth")
+    if d.ndim != 2 or d.dtype.kind not in "fiu" or (
+            camera is not None and d.shape != (camera.height, camera.width)):
+        want = "" if camera is None else f" ({camera.height}, {camera.width})"
+        raise SequenceFormatError(path, f"projected depth must be a 2-D number array{want}, got {d.dtype} {d.shape}")
+    d = d.astype(np.float32)
     return np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32)
 
 
@@ -174,6 +173,9 @@ class KittiRawSequence(Sequence):
         T_w_i_all = oxts_poses(self.packets)
         velocity_all = oxts_velocity_w(self.packets)
         gyro_all, accel_all = oxts_imu_samples(self.packets)
+        problem = imu_sample_problem(gyro_all, accel_all)
+        if problem is not None:
+            raise SequenceFormatError(packet_files[problem[0]], problem[1])
         if settings.retime_packets:
             contiguous = np.all(np.diff(packet_numbers) == 1)
             if not contiguous:
@@ -218,7 +220,7 @@ class KittiRawSequence(Sequence):
     def _depth_loader(self, stem: str):
         npz = self._npz_dir / f"{stem}.npz"
         if npz.is_file():
-            return partial(_load_npz_depth, npz)
+            return partial(_load_npz_depth, npz, self.camera)
         scan = self._bin_dir / f"{stem}.bin"
         if scan.is_file():
             return partial(_load_bin_depth, scan, self.calibration.T_c_velo, self.camera)

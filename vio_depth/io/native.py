@@ -29,11 +29,11 @@ from vio_core.checks import check_transform
 from vio_core.errors import InputError, SequenceFormatError, SettingsError
 
 from ..disparity import DisparityKind, DisparitySimulation, DisparitySpec
-from ..frame import Frame, ImuData
+from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import DEPTH_PNG_SCALE, read_depth_png
 from .images import read_rgb_image
-from .tables import read_text_table, read_tum_trajectory
+from .tables import read_text_table, read_tum_trajectory, stays_inside
 
 #: value of the "format" key of sequence.json
 FORMAT_TAG = "vio-depth-sequence"
@@ -68,12 +68,16 @@ def read_imu_txt(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parse ``t gx gy gz ax ay az`` per line: ``(t (M,) s, gyro (M, 3) rad/s, accel (M, 3) m/s^2)``.
 
     Raises:
-        SequenceFormatError: bad columns/values, timestamps not strictly increasing, or
-            a median sample rate below MIN_IMU_RATE_HZ.
+        SequenceFormatError: bad columns/values, timestamps not strictly increasing, a
+            sample beyond :data:`~vio_depth.frame.MAX_GYRO_RAD_S` / ``MAX_ACCEL_M_S2``, or a
+            median sample rate below MIN_IMU_RATE_HZ.
     """
     table = read_text_table(path, "IMU", layout="t gx gy gz ax ay az", columns=7)
     rows = table.floats()
     table.check_increasing(rows[:, 0])
+    problem = imu_sample_problem(rows[:, 1:4], rows[:, 4:7])
+    if problem is not None:
+        raise table.error(problem[0], problem[1])
     if len(rows) > 1:
         rate = 1.0 / float(np.median(np.diff(rows[:, 0])))
         if rate < MIN_IMU_RATE_HZ * (1 - 1e-6):
@@ -111,9 +115,13 @@ def _number(value, path: Path, where: str) -> float:
     return float(value)
 
 
-def _relative_file(root: Path, value, path: Path, where: str) -> Path:
+def _relative_file(root: Path, value, path: Path, where: str, line: int | None = None) -> Path:
+    """``root / value`` for a relative path that stays inside the sequence folder (no ``..``
+    escape; a symbolic link inside the folder may point elsewhere)."""
     if not isinstance(value, str) or not value or Path(value).is_absolute():
-        raise SequenceFormatError(path, f"{where} must be a relative path string, got {value!r}")
+        raise SequenceFormatError(path, f"{where} must be a relative path string, got {value!r}", line)
+    if not stays_inside(value):
+        raise SequenceFormatError(path, f"{where} {value!r} points outside the sequence folder", line)
     return root / value
 
 
@@ -238,7 +246,7 @@ class NativeSequence(Sequence):
         self.image_paths = []
         stems = {}
         for name_i, line in zip(image_names, frame_lines):
-            p = _relative_file(root, name_i, frames_path, "image path")
+            p = _relative_file(root, name_i, frames_path, "image path", int(line))
             if not p.is_file():
                 raise SequenceFormatError(frames_path, f"image file {name_i!r} not found", int(line))
             stem = Path(name_i).stem

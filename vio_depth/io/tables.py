@@ -12,6 +12,7 @@ pose interpolation in time (:func:`interpolate_poses`).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -124,6 +125,15 @@ def read_text_table(path, what: str, *, layout: str | None = None, columns: int 
     if not rows and not allow_empty:
         raise SequenceFormatError(path, f"no {what} rows")
     return TextTable(path, rows, lines)
+
+
+def stays_inside(relative: str) -> bool:
+    """True when the relative path ``relative`` names something inside its base folder: not
+    absolute and no ``..`` that climbs above it (checked on the text, links are not followed)."""
+    if not relative or os.path.isabs(relative):
+        return False
+    norm = os.path.normpath(relative)
+    return norm != ".." and not norm.startswith(".." + os.sep)
 
 
 def read_numeric_table(path, ncols: int, what: str) -> tuple[np.ndarray, np.ndarray]:

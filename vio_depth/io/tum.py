@@ -37,7 +37,14 @@ from ..frame import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import read_depth_png
 from .images import read_rgb_image
-from .tables import TextTable, associate_nearest, interpolate_poses, read_text_table, read_tum_trajectory
+from .tables import (
+    TextTable,
+    associate_nearest,
+    interpolate_poses,
+    read_text_table,
+    read_tum_trajectory,
+    stays_inside,
+)
 
 #: depth PNG units per metre
 TUM_DEPTH_SCALE = 5000.0
@@ -79,7 +86,11 @@ def _read_tum_list(path, what: str) -> tuple[np.ndarray, list[str]]:
     table = read_text_table(path, Path(path).name, layout=f"timestamp {what}", min_columns=2)
     t = table.floats(slice(0, 1), what="timestamp")[:, 0]
     table.check_increasing(t, strict=False)
-    return t, table.column(1)
+    names = table.column(1)
+    for row, name in enumerate(names):
+        if not stays_inside(name):
+            raise table.error(row, f"image path {name!r} points outside the sequence folder")
+    return t, names
 
 
 def freiburg_camera_name(folder: Path) -> str | None:

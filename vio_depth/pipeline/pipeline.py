@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from matchers import Matcher, create_matcher
 
-from ..disparity import DisparitySource, create_disparity_source
+from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
 from ..frame import Frame
 from ..poses import PoseSource, create_pose_source
@@ -102,22 +102,33 @@ class Pipeline:
             return result
 
         t = clock()
-        d, inside = sample_bilinear(disparity, points.uv)
-        outcome = self.rescaler.update(d[inside], points.depth[inside],
-                                       None if points.sigma is None else points.sigma[inside],
-                                       None if points.confidence is None else points.confidence[inside],
-                                       disparity_map=disparity)
-        timings["fit"] = clock() - t
-        result.rescale = outcome
-        result.points_sampled = int(inside.sum())
         result.disparity = disparity
+        content = check_map_content(disparity, self.settings.disparity.min_valid_fraction)
+        result.disparity_valid_fraction = content.valid_fraction
+        d, inside = sample_bilinear(disparity, points.uv)
+        result.points_sampled = int(inside.sum())
         result.points_uv, result.points_depth = points.uv[inside], points.depth[inside]
         result.points_sigma = None if points.sigma is None else points.sigma[inside]
+        # an unusable map gets no fit and no fallback: any depth from it would be wrong
+        usable = content if not content.ok else check_inversion(d[inside], points.depth[inside])
+        if not usable.ok:
+            outcome = self.rescaler.skip(f"unusable disparity map: {usable.reason}")
+        else:
+            outcome = self.rescaler.update(d[inside], points.depth[inside], result.points_sigma,
+                                           None if points.confidence is None else points.confidence[inside],
+                                           disparity_map=disparity)
+        timings["fit"] = clock() - t
+        result.rescale = outcome
         own = outcome.scale_only if outcome.scale_only is not None and outcome.scale_only.ok else outcome.raw
         result.points_inlier = own.inliers if len(own.inliers) == len(result.points_depth) else None
-        result.status = decide_frame_status(points.status, outcome.source, outcome.raw.status)
-        if result.status.has_depth or points.status == FrameStatus.OK:
+        result.status = decide_frame_status(points.status, outcome.source, outcome.raw.status, usable.ok)
+        if not usable.ok:
+            result.reason = outcome.reason
+        elif result.status.has_depth or points.status == FrameStatus.OK:
             result.reason = "; ".join(r for r in (points.reason, outcome.reason) if r)
+        if usable.ok and content.valid_fraction < 1.0:
+            result.reason = f"{result.reason}; disparity valid on {content.valid_fraction:.0%} of the image" \
+                .lstrip("; ")
         if outcome.fit is not None:
             t = clock()
             result.depth = outcome.metric_depth(disparity)

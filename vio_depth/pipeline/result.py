@@ -118,6 +118,8 @@ class FrameResult:
         timings: seconds per stage (``disparity``, ``features``, ``points``, ``fit``,
             ``depth``; the runner adds ``load``, ``write``, ``evaluation``).
         backfilled: the result comes from the offline backward pass.
+        disparity_valid_fraction: fraction of finite pixels of the disparity map (None
+            without a map).
     """
 
     frame: int
@@ -137,6 +139,7 @@ class FrameResult:
     points_inlier: np.ndarray | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict)
     backfilled: bool = False
+    disparity_valid_fraction: float | None = None
 
     @property
     def has_depth(self) -> bool:

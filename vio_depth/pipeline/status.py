@@ -27,6 +27,7 @@ class FrameStatus(str, enum.Enum):
     ILL_CONDITIONED = "ill_conditioned"
     NO_CONSENSUS = "no_consensus"
     NO_DISPARITY = "no_disparity"
+    INVALID_DISPARITY = "invalid_disparity"  # a map that cannot give depth (vio_depth.disparity.validity)
 
     @property
     def has_depth(self) -> bool:
@@ -54,7 +55,7 @@ _FROM_FIT_STATUS = {
 
 
 def decide_frame_status(points_status: FrameStatus, fit_source: FitSource | None,
-                        fit_status: FitStatus | None) -> FrameStatus:
+                        fit_status: FitStatus | None, disparity_usable: bool = True) -> FrameStatus:
     """The frame's status from its points stage and its rescaling.
 
     Args:
@@ -63,9 +64,13 @@ def decide_frame_status(points_status: FrameStatus, fit_source: FitSource | None
         fit_source: which fallback stage gave the fit used, or None when the frame had no
             disparity map (status NO_DISPARITY).
         fit_status: this frame's own fit status (when ``fit_source`` is NONE: why it failed).
+        disparity_usable: False when the frame's disparity map failed a content check
+            (:mod:`vio_depth.disparity.validity`): INVALID_DISPARITY, whatever else happened.
     """
     if fit_source is None:
         return FrameStatus.NO_DISPARITY
+    if not disparity_usable:
+        return FrameStatus.INVALID_DISPARITY
     if fit_source in _FROM_FIT_SOURCE:
         return _FROM_FIT_SOURCE[fit_source]  # depth (this frame's fit or a fallback)
     if points_status != FrameStatus.OK:

@@ -148,6 +148,8 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
     H_bias = np.zeros((9, 6), order="F")  # d(end state (rotation, position, velocity; end frame)) / d(accel, gyro bias)
     state1 = pim.predict(state0, bias, np.zeros((9, 9), order="F"), H_bias)
     T_w_i1 = state1.pose().matrix()
+    if not (np.all(np.isfinite(T_w_i1)) and np.all(np.isfinite(np.asarray(state1.velocity(), float)))):
+        return None, f"IMU preintegration from {t0:.3f} s to {t1:.3f} s gave non-finite values"
     T_i0_i1 = invert_transform(start.T_w_i) @ T_w_i1
 
     dt = t1 - t0

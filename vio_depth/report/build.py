@@ -58,7 +58,7 @@ class ReportResult:
     images: list = field(default_factory=list)  # image paths relative to the report folder
 
 
-def build_report(out_dir, report_dir=None, run_info: dict | None = None) -> ReportResult:
+def build_report(out_dir, report_dir=None, run_info: dict | None = None, name: str | None = None) -> ReportResult:
     """Write the report of the run in ``out_dir`` to ``report_dir`` (default ``out_dir/report``).
 
     Args:
@@ -67,12 +67,15 @@ def build_report(out_dir, report_dir=None, run_info: dict | None = None) -> Repo
             replaced.
         run_info: ``{"version", "command_line", "settings"}`` to show when the run's files do
             not record them (``vio-depth run --report`` passes its own).
+        name: the run folder's name to show (default: ``out_dir``'s; a run builds its report
+            in its staging folder and passes the name of ``--out``).
 
     Raises:
         InputError: no run folder / ``frames.jsonl``.
         MissingDependencyError: matplotlib is not installed (``pip install -e '.[report]'``).
     """
     run = load_run(out_dir)
+    run.name = name or run.out_dir.resolve().name
     report_dir = Path(report_dir) if report_dir is not None else run.out_dir / "report"
     for sub in ("plots", "thumbs"):
         if (report_dir / sub).is_dir():
@@ -96,7 +99,7 @@ def build_report(out_dir, report_dir=None, run_info: dict | None = None) -> Repo
     omitted = [b.text for s in sections for b in s.blocks if isinstance(b, Note) and b.text.startswith("Omitted")]
     if run.notes:
         sections.append(Section("Reading notes", "notes", [Text(n) for n in run.notes]))
-    title = f"vio-depth run report: {run.out_dir.resolve().name}"
+    title = f"vio-depth run report: {run.name}"
     html_path, md_path = report_dir / "index.html", report_dir / "report.md"
     write_bytes_atomic(html_path, to_html(title, sections).encode("utf-8"))
     write_bytes_atomic(md_path, to_markdown(title, sections).encode("utf-8"))
@@ -146,7 +149,7 @@ def _run_section(run: RunData, run_info: dict | None) -> Section:
     cmd = info["command_line"]
     if isinstance(cmd, (list, tuple)):
         cmd = shlex.join(str(c) for c in cmd)
-    blocks.append(Table(["", ""], [["folder", run.out_dir.resolve().name],
+    blocks.append(Table(["", ""], [["folder", run.name],
                                    ["vio-depth version", _fmt(info["version"])],
                                    ["command line", _fmt(cmd)]]))
     if info["settings"] is not None:

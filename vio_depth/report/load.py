@@ -47,6 +47,7 @@ class RunData:
         legend: ``thumbs/legend.json`` or ``preview/legend.json`` (colours of previews), or None.
         files: output folder -> (file count, description), only for folders present.
         notes: problems met while reading.
+        name: the name the report shows for the folder ("" = the folder's own).
     """
 
     out_dir: Path
@@ -56,6 +57,7 @@ class RunData:
     legend: dict | None = None
     files: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    name: str = ""
 
     def info(self) -> dict:
         """``{"version", "command_line", "settings"}`` from the header (or from ``metrics.json``);

@@ -17,7 +17,7 @@ module                 job
 """
 
 from .affine import AffineFit, FitStatus, RansacSettings, metric_disparity_sigma
-from .depthmap import depth_sigma_map, metric_depth
+from .depthmap import depth_sigma_map, metric_depth, predicted_relative_error
 from .fit import fit_affine, fit_scale_only
 from .rescaler import (
     RESCALER_PRESETS,
@@ -46,5 +46,6 @@ __all__ = [
     "fit_scale_only",
     "metric_depth",
     "metric_disparity_sigma",
+    "predicted_relative_error",
     "sample_bilinear",
 ]

@@ -73,3 +73,35 @@ def depth_sigma_map(disparity, fit: AffineFit, max_depth: float | None = None) -
         sigma = np.where(ok, sigma, np.nan)
     return sigma.astype(np.float32)
 
+
+
+def predicted_relative_error(disparity, fit, max_pixels: int = 40_000) -> float:
+    """The median over the map of the predicted relative depth error ``sigma_D / D``.
+
+    First order, per pixel: ``sigma_D / D = sigma_m / m`` with ``m = alpha*d + beta`` and
+    ``sigma_m**2 = [d, 1] Sigma [d, 1]^T`` (the fit's covariance ``Sigma``); pixels with
+    ``m <= 0`` or non-finite ``d`` have no depth and are left out. The map is subsampled
+    on a regular grid to at most about ``max_pixels`` pixels.
+
+    Args:
+        disparity: (H, W) affine-invariant disparity.
+        fit: an object with ``alpha``, ``beta`` and a (2, 2) ``covariance`` (1/m units).
+
+    Returns:
+        the median (unit-free; 0.1 = 10 %), or ``inf`` when no pixel has depth or the
+        covariance is not finite.
+    """
+    disp = check_image("disparity", disparity)
+    cov = check_array("fit.covariance", fit.covariance, (2, 2))
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
+    step = max(1, int(np.ceil(np.sqrt(disp.size / max_pixels))))
+    d = disp[::step, ::step].astype(np.float64).ravel()
+    with np.errstate(invalid="ignore", over="ignore"):
+        m = float(fit.alpha) * d + float(fit.beta)
+        ok = np.isfinite(m) & (m > 0)
+        d, m = d[ok], m[ok]
+        var_m = d * d * cov[0, 0] + 2.0 * d * cov[0, 1] + cov[1, 1]
+    if len(m) == 0:
+        return float("inf")
+    return float(np.median(np.sqrt(np.maximum(var_m, 0.0)) / m))

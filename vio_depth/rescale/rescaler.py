@@ -11,7 +11,7 @@ from vio_core.errors import InputError, SettingsError
 from vio_core.settings import Presets
 
 from .affine import AffineFit, RansacSettings
-from .depthmap import depth_sigma_map, metric_depth
+from .depthmap import depth_sigma_map, metric_depth, predicted_relative_error
 from .fit import fit_affine, fit_scale_only
 from .temporal import (
     AffineKalmanFilter,
@@ -19,6 +19,7 @@ from .temporal import (
     KalmanSettings,
     anchors_from_map,
     anchors_from_points,
+    carry_fit,
     inflate_covariance,
 )
 
@@ -43,16 +44,27 @@ class RescalerSettings:
             is used (the previous beta / fit is considered stale).
         temporal: :class:`vio_depth.rescale.temporal.KalmanSettings` of the (alpha, beta) filter
             (on by default), or None to use each frame's fit as is.
+        max_fallback_error: a fallback frame gets depth only while its predicted relative
+            depth error (:func:`~vio_depth.rescale.depthmap.predicted_relative_error`: the
+            median over the map of ``sigma_D / D`` from the fallback fit's covariance, which
+            grows with age by the random-walk model of ``temporal``, or of the default
+            :class:`KalmanSettings` without a filter) is at most this. 0.10: on the samples
+            and 7-Scenes (SIMULATED disparity) the fallback frames it admits measured AbsRel
+            <= 0.10; beyond it errors grow to 0.2-0.3 (docs/safety.md).
     """
 
     ransac: RansacSettings = RansacSettings()
     fallback: bool = True
     max_fallback_age: int = 10
     temporal: KalmanSettings | None = KalmanSettings()
+    max_fallback_error: float = 0.10
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
+        if not self.max_fallback_error > 0:
+            raise SettingsError(f"RescalerSettings.max_fallback_error must be > 0 (relative), "
+                                f"got {self.max_fallback_error!r}")
 
 
 #: Named rescaler presets (``[rescaler] preset = ...`` in a config file).
@@ -81,6 +93,8 @@ class RescaleResult:
         filtered: the filter's output for this frame when the filter is on, else None.
         age: frames between this frame and the one whose fit is used (0 = this frame).
         reason: why this stage was chosen (joined reasons of the failed stages).
+        predicted_error: for a fallback (used or refused), its predicted relative depth
+            error (see ``RescalerSettings.max_fallback_error``); None otherwise.
     """
 
     source: FitSource
@@ -90,6 +104,7 @@ class RescaleResult:
     filtered: KalmanEstimate | None = None
     age: int = 0
     reason: str = ""
+    predicted_error: float | None = None
 
     @property
     def has_depth(self) -> bool:
@@ -118,10 +133,17 @@ class Rescaler:
 
     1. ``SCALE_ONLY``: :func:`fit_scale_only` with beta (and its variance) of the fit used at
        the last ``OK`` frame; used when it is OK.
-    2. ``PREVIOUS_FIT``: the last fit that gave depth (``OK`` or ``SCALE_ONLY``), reused
-       unchanged; with the temporal filter on, its covariance is inflated by the filter's
-       process noise for every frame of age.
+    2. ``PREVIOUS_FIT``: the last fit that gave depth (``OK`` or ``SCALE_ONLY``) carried to
+       this frame (:func:`~vio_depth.rescale.temporal.carry_fit`): expressed as metric
+       disparities at its frame's anchor disparities, its covariance grown by the
+       random-walk process model for every frame of age, and mapped back through this
+       frame's anchors, so that it follows the network's renormalisation of this frame.
+       Without a disparity map for either frame the fit is reused unchanged (covariance
+       grown the same way).
     3. ``NONE``: no metric depth for this frame (``RescaleResult.fit is None``).
+
+    A fallback (1 or 2) is used only while its predicted relative depth error is at most
+    ``max_fallback_error``; otherwise the frame has no depth and the reason says why.
 
     With ``settings.temporal`` set, every OK full fit is a measurement of an
     :class:`~vio_depth.rescale.temporal.AffineKalmanFilter` (anchored at the 25 % / 75 % quantiles of
@@ -130,9 +152,10 @@ class Rescaler:
     not fed to the filter (a scale-only fit reuses the last beta), but each frame is one
     prediction step. Call :meth:`reset` on a known scene change.
 
-    Both fallbacks assume that the network normalised this frame like the last good one
-    (beta, or alpha and beta, carried over). That holds for consecutive video frames of a
-    network whose normalisation follows the scene's disparity range, not across cuts.
+    Both fallbacks assume that the network normalised this frame like the last good one up
+    to an increasing affine map that the anchors follow (beta, or the scene's metric
+    disparity at the anchors, carried over). That holds for consecutive video frames, not
+    across cuts.
     """
 
     def __init__(self, settings: RescalerSettings = RescalerSettings()):
@@ -140,6 +163,7 @@ class Rescaler:
         self._filter = None
         if settings.temporal is not None:
             self._filter = AffineKalmanFilter(settings.temporal)
+        self._process = settings.temporal if settings.temporal is not None else KalmanSettings()
         self.reset()
 
     def reset(self) -> None:
@@ -150,13 +174,32 @@ class Rescaler:
         self._last_used_frame: int | None = None
         self._last_used_fit: AffineFit | None = None
         self._last_used_anchors: tuple[float, float] | None = None
+        self._last_used_map_anchors = False  # the anchors came from a disparity map (not the points)
         if self._filter is not None:
             self._filter.reset()
 
-    def _anchors(self, d: np.ndarray, inliers: np.ndarray, disparity_map) -> tuple[float, float]:
-        if disparity_map is not None:
-            return anchors_from_map(disparity_map, self.settings.temporal)
-        return anchors_from_points(d, inliers, self.settings.temporal)
+    def _anchors(self, d: np.ndarray, inliers: np.ndarray, disparity_map) -> tuple[float, float] | None:
+        """This frame's anchor disparities (of the map when given, else of the inliers), or None."""
+        try:
+            if disparity_map is not None:
+                return anchors_from_map(disparity_map, self._process)
+            return anchors_from_points(d, inliers, self._process)
+        except InputError:  # e.g. a constant disparity map
+            return None
+
+    def _use(self, fit: AffineFit, anchors, disparity_map) -> None:
+        self._last_used_frame = self._frame
+        self._last_used_fit = fit
+        self._last_used_anchors = anchors
+        self._last_used_map_anchors = disparity_map is not None
+
+    def skip(self, reason: str) -> RescaleResult:
+        """Count a frame that must get no depth at all (e.g. an unusable disparity map): the
+        frame clock and the filter advance, no fit is made and nothing is carried over."""
+        self._frame += 1
+        estimate = self._filter.step(None, None) if self._filter is not None else None
+        raw = fit_affine(np.zeros(0), np.zeros(0), settings=self.settings.ransac)
+        return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason=reason)
 
     def update(self, d, depth, sigma_depth=None, weights=None, disparity_map=None) -> RescaleResult:
         """Rescale one frame (call once per frame, in order, even with no points).
@@ -166,9 +209,10 @@ class Rescaler:
             depth: (N,) metres.
             sigma_depth: (N,) metres or None.
             weights: (N,) extra weights > 0 or None.
-            disparity_map: (H, W) this frame's disparity map, or None. Used only by the
-                temporal filter, for its anchors (:func:`~vio_depth.rescale.temporal.anchors_from_map`);
-                without it the anchors come from the inliers' ``d`` (noisier).
+            disparity_map: (H, W) this frame's disparity map, or None. Used for the anchors
+                of the temporal filter and of the fallbacks
+                (:func:`~vio_depth.rescale.temporal.anchors_from_map`; without it they come
+                from the inliers' ``d``, noisier) and for the fallbacks' predicted error.
 
         Returns:
             :class:`RescaleResult`.
@@ -178,12 +222,9 @@ class Rescaler:
         raw = fit_affine(d, depth, sigma_depth, weights, s.ransac)
         d = np.asarray(d, dtype=np.float64)
         estimate = anchors = None
+        if raw.ok:
+            anchors = self._anchors(d, raw.inliers, disparity_map)
         if self._filter is not None:
-            if raw.ok:
-                try:
-                    anchors = self._anchors(d, raw.inliers, disparity_map)
-                except InputError:  # e.g. a constant disparity map: use this frame's fit unfiltered
-                    anchors = None
             estimate = self._filter.step(raw if anchors is not None else None, anchors)
 
         if raw.ok:
@@ -192,9 +233,9 @@ class Rescaler:
             if estimate is not None and anchors is not None:
                 used = replace(raw, alpha=estimate.alpha, beta=estimate.beta, covariance=estimate.covariance)
                 reason = f"{raw.reason}; filter: {estimate.reason}"
-            self._last_ok_frame = self._last_used_frame = self._frame
-            self._last_ok_fit = self._last_used_fit = used
-            self._last_used_anchors = anchors
+            self._last_ok_frame = self._frame
+            self._last_ok_fit = used
+            self._use(used, anchors, disparity_map)
             return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason)
 
         reasons = [f"fit {raw.status.value}: {raw.reason}"]
@@ -210,24 +251,49 @@ class Rescaler:
             beta_var = float(prev.covariance[1, 1]) if np.isfinite(prev.covariance[1, 1]) else 0.0
             scale = fit_scale_only(d, depth, prev.beta, beta_var, sigma_depth, weights, s.ransac)
             if scale.ok:
-                self._last_used_frame = self._frame
-                self._last_used_fit = scale
-                if self._filter is not None:
-                    try:
-                        self._last_used_anchors = self._anchors(d, scale.inliers, disparity_map)
-                    except InputError:
-                        self._last_used_anchors = None
-                return RescaleResult(FitSource.SCALE_ONLY, scale, raw, scale_only=scale, filtered=estimate,
-                                     reason="; ".join(reasons + [f"scale-only fit with beta of frame "
-                                                                 f"{self._last_ok_frame}: {scale.reason}"]))
+                anchors = self._anchors(d, scale.inliers, disparity_map)
+                error = self._predicted_error(scale, disparity_map, anchors)
+                reasons.append(f"scale-only fit with beta of frame {self._last_ok_frame}: {scale.reason}")
+                if error <= s.max_fallback_error:
+                    self._use(scale, anchors, disparity_map)
+                    return RescaleResult(FitSource.SCALE_ONLY, scale, raw, scale_only=scale, filtered=estimate,
+                                         reason="; ".join(reasons), predicted_error=error)
+                return self._refused(raw, scale, estimate, 0, error, reasons)
             reasons.append(f"scale-only {scale.status.value}: {scale.reason}")
             age = self._frame - self._last_used_frame
-            used = self._last_used_fit
-            if self._filter is not None and self._last_used_anchors is not None:
-                cov = inflate_covariance(used.alpha, used.beta, used.covariance, age, self._last_used_anchors,
-                                         s.temporal)
-                used = replace(used, covariance=cov)
-            reasons.append(f"reusing the fit of frame {self._last_used_frame} ({age} frame(s) old)")
-            return RescaleResult(FitSource.PREVIOUS_FIT, used, raw, scale_only=scale, filtered=estimate,
-                                 age=age, reason="; ".join(reasons))
+            used, how = self._carried(age, disparity_map)
+            reasons.append(f"previous fit of frame {self._last_used_frame} ({age} frame(s) old) {how}")
+            error = self._predicted_error(used, disparity_map, self._last_used_anchors)
+            if error <= s.max_fallback_error:
+                return RescaleResult(FitSource.PREVIOUS_FIT, used, raw, scale_only=scale, filtered=estimate,
+                                     age=age, reason="; ".join(reasons), predicted_error=error)
+            return self._refused(raw, scale, estimate, age, error, reasons)
         return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason="; ".join(reasons))
+
+    def _carried(self, age: int, disparity_map) -> tuple[AffineFit, str]:
+        """The last used fit for this frame, and how it was obtained (for the reason)."""
+        used = self._last_used_fit
+        then = self._last_used_anchors
+        now = self._anchors(np.zeros(0), np.zeros(0, bool), disparity_map) if disparity_map is not None else None
+        if then is not None and now is not None and self._last_used_map_anchors:
+            alpha, beta, cov = carry_fit(used.alpha, used.beta, used.covariance, age, then, now, self._process)
+            return replace(used, alpha=alpha, beta=beta, covariance=cov), "carried to this frame's disparity"
+        if then is not None:
+            cov = inflate_covariance(used.alpha, used.beta, used.covariance, age, then, self._process)
+            return replace(used, covariance=cov), "reused unchanged (no disparity map to carry it)"
+        return used, "reused unchanged"
+
+    def _predicted_error(self, fit: AffineFit, disparity_map, anchors) -> float:
+        """Predicted relative depth error of a fallback: over the map when given, else the
+        larger one at the two anchors; ``inf`` when it cannot be predicted."""
+        if disparity_map is not None:
+            return predicted_relative_error(disparity_map, fit)
+        if anchors is None:
+            return float("inf")
+        return predicted_relative_error(np.asarray([anchors], dtype=np.float64), fit, max_pixels=2)
+
+    def _refused(self, raw, scale, estimate, age, error, reasons) -> RescaleResult:
+        reasons.append(f"fallback refused: predicted relative depth error {error:.3g} > max_fallback_error "
+                       f"{self.settings.max_fallback_error:g}")
+        return RescaleResult(FitSource.NONE, None, raw, scale_only=scale, filtered=estimate, age=age,
+                             reason="; ".join(reasons), predicted_error=error)

@@ -217,6 +217,40 @@ def inflate_covariance(alpha: float, beta: float, covariance, steps: int, anchor
     return _to_params(x, P, anchors)[2]
 
 
+def carry_fit(alpha: float, beta: float, covariance, steps: int, anchors_then: tuple[float, float],
+              anchors_now: tuple[float, float], settings: KalmanSettings) -> tuple[float, float, np.ndarray]:
+    """An older fit carried ``steps`` frames forward and re-expressed in this frame's disparity.
+
+    The fit is turned into the filter's state (the metric disparity at its own frame's
+    anchors), its covariance grows by ``steps`` frames of the random-walk process model
+    (as in :func:`inflate_covariance`), and the line through the state is mapped back
+    through *this* frame's anchors. A network that renormalises its output per frame (an
+    increasing affine map of ``d``) moves the anchors with it, so the carried fit follows
+    the renormalisation, which reusing ``(alpha, beta)`` unchanged does not (docs/safety.md:
+    on SIMULATED disparity a reused fit was 15-340 % off, a carried one 2-10 %).
+
+    Args:
+        alpha, beta, covariance: the older fit ((2, 2) covariance of alpha, beta).
+        steps: frames between the two (>= 0).
+        anchors_then: (d_lo, d_hi) of the older fit's frame; anchors_now: of this frame.
+        settings: :class:`KalmanSettings` (``process_sigma``, ``min_reference_fraction``).
+
+    Returns:
+        ``(alpha, beta, covariance)`` for this frame's disparity.
+    """
+    cov = check_array("covariance", covariance, (2, 2))
+    for name, a in (("anchors_then", anchors_then), ("anchors_now", anchors_now)):
+        if not (len(a) == 2 and np.all(np.isfinite(a)) and a[1] > a[0]):
+            raise InputError(f"carry_fit: {name} must be (d_lo, d_hi) with d_lo < d_hi, got {a!r}")
+    A = _design(anchors_then)
+    x = A @ np.array([alpha, beta])
+    P = A @ cov @ A.T
+    if steps > 0:
+        q = settings.process_sigma * _reference(x, settings)
+        P = P + int(steps) * np.diag(q * q)
+    return _to_params(x, P, anchors_now)
+
+
 class AffineKalmanFilter:
     """Kalman filter on the metric disparities at two anchors, ``(m_lo, m_hi)``.
 

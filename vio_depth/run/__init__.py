@@ -8,19 +8,45 @@ module             job
 ``outputs``        :class:`RunOutputs`: depth PNGs, ``frames.jsonl``, ``metrics.json``
 ``record``         :class:`FrameRecord`, :class:`RunHeader` (docs/frames_schema.md)
 ``summary``        :class:`RunSummary`, the printed table
+``folder``         :class:`OutputFolder`: path checks, the staging folder, the atomic swap into place
+``resume``         continuing an interrupted run: header and replay checks
+``verdict``        :func:`judge_run`: "nothing came out", the exit codes
 ``trajectory``     the camera poses the run used (``trajectory.tum``), their ATE / RPE
 =================  ============================================================================
 """
 
 from .config import RunSettings, config_from_dict, config_to_dict, dump_config, load_config
+from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path, staging_path
 from .outputs import RunOutputs
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
+from .resume import ResumeError
 from .runner import run_header, run_sequence
-from .summary import RunSummary, format_table
+from .summary import RunSummary, format_table, summary_of_folder
 from .trajectory import TrajectoryReport, run_trajectory, used_poses
+from .verdict import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_NOTHING_CAME_OUT,
+    EXIT_OK,
+    EXIT_USAGE,
+    MIN_DEPTH_FRACTION,
+    RunVerdict,
+    judge_run,
+)
 
 __all__ = [
+    "EXIT_ERROR",
+    "EXIT_INTERRUPTED",
+    "EXIT_NOTHING_CAME_OUT",
+    "EXIT_OK",
+    "EXIT_USAGE",
+    "MIN_DEPTH_FRACTION",
+    "OutputFolder",
+    "OutputFolderError",
+    "OutputMode",
     "RECORD_SCHEMA_VERSION",
+    "ResumeError",
+    "RunVerdict",
     "FrameRecord",
     "RunHeader",
     "RunOutputs",
@@ -36,6 +62,10 @@ __all__ = [
     "read_frames_jsonl",
     "run_header",
     "run_sequence",
+    "check_out_path",
+    "judge_run",
+    "staging_path",
+    "summary_of_folder",
     "run_trajectory",
     "used_poses",
 ]

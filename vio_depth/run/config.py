@@ -27,6 +27,7 @@ from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
 from ..pipeline import PipelineSettings
+from .verdict import MIN_DEPTH_FRACTION
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,9 @@ class RunSettings:
         export: the optional outputs (float ``.npy`` depth, previews, PLY clouds, report
             thumbnails; :class:`~vio_depth.export.ExportSettings`, docs/outputs.md).
         report: write ``report/index.html`` and ``report.md`` at the end (needs matplotlib).
+        min_depth_fraction: a finished run in which fewer than this fraction of the processed
+            frames got metric depth is reported as "nothing came out" (``vio-depth run``
+            exits with code 3; :mod:`vio_depth.run.verdict`).
     """
 
     max_frames: int = 0
@@ -58,6 +62,7 @@ class RunSettings:
     rpe_delta_m: float = 1.0
     export: ExportSettings = field(default_factory=ExportSettings)
     report: bool = False
+    min_depth_fraction: float = MIN_DEPTH_FRACTION
 
     def __post_init__(self):
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:
@@ -65,6 +70,8 @@ class RunSettings:
         if not 0 <= self.min_eval_depth < self.max_eval_depth:
             raise SettingsError("need 0 <= min_eval_depth < max_eval_depth (metres), got "
                                 f"{self.min_eval_depth!r}, {self.max_eval_depth!r}")
+        if not 0.0 <= self.min_depth_fraction <= 1.0:
+            raise SettingsError(f"min_depth_fraction must be in [0, 1], got {self.min_depth_fraction!r}")
         if not self.rpe_delta_m > 0:
             raise SettingsError(f"rpe_delta_m must be positive (metres), got {self.rpe_delta_m!r}")
 

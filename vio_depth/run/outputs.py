@@ -2,7 +2,8 @@
 and metrics.json.
 
 Every file is written under a temporary name and renamed into place when complete, so an
-interrupted run never leaves a half-written file; ``frames.jsonl``, ``trajectory.tum`` and
+interrupted run never leaves a half-written file (and the whole folder is a staging folder
+that is moved into ``--out`` only at the end, :mod:`vio_depth.run.folder`); ``frames.jsonl``, ``trajectory.tum`` and
 ``metrics.json`` appear only when the whole run succeeded.
 """
 

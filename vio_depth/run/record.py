@@ -67,6 +67,8 @@ class FrameRecord:
     points_rel_err_median: float | None = None
     points_rel_err_p90: float | None = None
     backfilled: bool | None = None
+    disparity_valid_fraction: float | None = None
+    fallback_predicted_error: float | None = None
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -101,6 +103,9 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         point_status=points.point_status or None,
         points_sampled=result.points_sampled,
         backfilled=True if result.backfilled else None,
+        disparity_valid_fraction=(None if result.disparity_valid_fraction is None
+                                  or result.disparity_valid_fraction >= 1.0
+                                  else round(result.disparity_valid_fraction, 5)),
         seconds=round(result.seconds, 4),
         timings={k: round(v, 5) for k, v in result.timings.items()},
     )
@@ -112,6 +117,8 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         rec.inliers = int(out.n_inliers)
         rec.fit_source = out.source.value
         rec.fit_diagnostics = out.raw.to_json()
+        if out.predicted_error is not None:
+            rec.fallback_predicted_error = _round(out.predicted_error, 5)
         if out.fit is not None:
             rec.alpha, rec.beta = float(out.fit.alpha), float(out.fit.beta)
             rec.sigma_alpha, rec.sigma_beta = _round(out.fit.sigma_alpha), _round(out.fit.sigma_beta)

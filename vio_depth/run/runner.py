@@ -10,8 +10,11 @@ import logging
 import sys
 import time
 from dataclasses import replace
+from typing import Iterable
 
 from tqdm import tqdm
+
+from vio_core.errors import InputError
 
 from .._version import __version__
 from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
@@ -21,10 +24,13 @@ from ..io import Sequence
 from ..pipeline import FrameResult, FrameStatus, Pipeline
 from ..report import build_report
 from .config import RunSettings, config_to_dict
+from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
 from .record import FrameRecord, RunHeader, frame_record
-from .summary import RunSummary
+from .resume import ResumeError, ResumePlan, plan_run, record_difference
+from .summary import RunSummary, summary_of_folder
 from .trajectory import run_trajectory
+from .verdict import judge_run
 
 log = logging.getLogger(__name__)
 
@@ -43,36 +49,81 @@ def run_header(sequence: Sequence, pipeline: Pipeline, settings: RunSettings, co
 
 
 def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunSettings = RunSettings(), *,
-                 progress: bool | None = None, command: list[str] | None = None) -> RunSummary:
+                 progress: bool | None = None, command: list[str] | None = None,
+                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = ()) -> RunSummary:
     """Process ``sequence`` (or its first ``settings.max_frames`` frames) and write outputs to ``out_dir``.
+
+    Everything is written into a staging folder next to ``out_dir`` and moved into place
+    at the end (:mod:`vio_depth.run.folder`); an interrupted run can be continued with
+    ``mode="resume"`` (:mod:`vio_depth.run.resume`).
 
     Args:
         sequence: an open sequence (:func:`vio_depth.io.open_sequence`).
         pipeline: a fresh :class:`~vio_depth.pipeline.Pipeline` for it.
-        out_dir: the output folder (created if missing).
+        out_dir: the output folder (created if missing; see ``mode`` when it exists).
         settings: :class:`RunSettings`.
         progress: show a progress bar (None = only when stderr is a terminal).
         command: the command line to record (the CLI passes ``sys.argv``).
+        mode: ``"new"`` (refuse an ``out_dir`` holding a run), ``"overwrite"`` (replace it
+            atomically at the end) or ``"resume"`` (continue an interrupted run).
+        inputs: further paths the run reads (disparity folder, model, config file):
+            ``out_dir`` may not be, lie in or contain them, nor the sequence folder.
 
     Returns:
-        :class:`RunSummary` (also written to ``metrics.json`` with ground truth).
+        :class:`RunSummary` (also written to ``metrics.json`` with ground truth);
+        ``resumed_frames`` says how many frames were replayed (-1: nothing to resume).
 
     Raises:
-        InputError: unreadable inputs; files already written stay complete (atomic writes).
+        OutputFolderError: ``out_dir`` cannot be used (before anything is written).
+        ResumeError: the interrupted run differs from this one.
+        InputError: unreadable inputs; ``out_dir`` is untouched and the partial run stays
+            in the staging folder for ``mode="resume"``.
     """
+    folder = OutputFolder(out_dir, mode, inputs=[sequence.root, *inputs])
+    n_total = len(sequence)
+    n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
+    header = run_header(sequence, pipeline, settings, command)
+    stems = [sequence.frame(i).stem for i in range(n)]
+    first_of: dict[str, int] = {}
+    for i, stem in enumerate(stems):
+        if stem in first_of:
+            raise InputError(f"{sequence.root}: frames {first_of[stem]} and {i} share the image name {stem!r}; "
+                             "their outputs would overwrite each other")
+        first_of[stem] = i
+    plan = plan_run(folder, header.to_json(), stems)
+    if plan.complete:
+        log.info("%s already holds this finished run: nothing to resume", folder.out)
+        summary = summary_of_folder(folder.out)
+        summary.resumed_frames = -1
+        return summary
+    try:
+        summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n)
+        folder.commit()
+    except BaseException:
+        folder.release()
+        raise
+    if summary.report:
+        summary.report = str(folder.out / "report" / "index.html")
+    return summary
+
+
+def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
+         plan: ResumePlan, progress: bool | None, n: int) -> RunSummary:
+    """The frame loop (replaying the journaled frames first), the backward pass and the run-end
+    outputs, all written into ``folder.staging``."""
+    out_dir = folder.staging
     outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
     exporter = RunExporter(out_dir, export) if export.any else None
-    n_total = len(sequence)
-    n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
     t_start = time.perf_counter()
     evaluate_points = not pipeline.settings.points.uses_ground_truth  # reference points come from the GT
 
-    def finish_frame(frame: Frame, res: FrameResult) -> tuple[FrameRecord, FrameEvaluation | None]:
+    def finish_frame(frame: Frame, res: FrameResult, write: bool = True) -> tuple[FrameRecord, FrameEvaluation | None]:
         t = time.perf_counter()
-        outputs.write_frame(res)
+        if write:
+            outputs.write_frame(res)
         if exporter is not None:
-            exporter.add_frame(frame, res)
+            exporter.add_frame(frame, res, write=write)
         res.timings["write"] = time.perf_counter() - t
         evaluation = None
         if sequence.has_gt_depth:
@@ -90,6 +141,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
                disable=(not sys.stderr.isatty()) if progress is None else not progress, file=sys.stderr)
     with_depth = 0
+    if plan.start:
+        log.info("resuming %s: replaying frames 0-%d, then continuing", folder.out, plan.start - 1)
     for i in bar:
         t = time.perf_counter()
         frame = sequence[i]
@@ -97,7 +150,15 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         res = pipeline.process(frame)
         res.timings["load"] = load
         results[i] = res
-        done[i] = finish_frame(frame, res)
+        replay = i < plan.start
+        done[i] = finish_frame(frame, res, write=not replay)
+        if replay:
+            diff = record_difference(plan.records[i], done[i][0].to_json())
+            if diff:
+                raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
+                                  f"result than the interrupted run ({diff}); give --overwrite to start over")
+        else:
+            folder.append(done[i][0].to_json())
         with_depth += res.has_depth
         bar.set_postfix(depth=f"{with_depth}/{i + 1}")
     if settings.backfill and pipeline.points is not None:
@@ -109,15 +170,15 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
 
     records = [done[i][0] for i in range(n)]
     evaluations = [done[i][1] for i in range(n)]
-    header = run_header(sequence, pipeline, settings, command)
     summary = RunSummary(
-        frames_in_sequence=n_total,
+        frames_in_sequence=len(sequence),
         frames_processed=n,
         frames_with_depth=sum(results[i].has_depth for i in range(n)),
         status_counts={},
         seconds=round(time.perf_counter() - t_start, 2),
         disparity_kind=header.disparity_kind,
         run=header.to_json(),
+        resumed_frames=plan.start,
     )
     for r in records:
         summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
@@ -134,11 +195,12 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     summary.trajectory = trajectory.to_json()
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
-    # frames.jsonl, trajectory.tum and metrics.json appear only now, complete, after every frame succeeded
+    summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
+    # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
     outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
                    trajectory.trajectory)
     if settings.report:
-        summary.report = str(build_report(out_dir).html)
+        summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
              summary.seconds)
     return summary
@@ -156,7 +218,8 @@ def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameRe
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
     if first_ok is None or first_ok == 0:
         return {}
-    lead = [i for i in range(first_ok) if results[i].status != FrameStatus.NO_DISPARITY]
+    lead = [i for i in range(first_ok)
+            if results[i].status not in (FrameStatus.NO_DISPARITY, FrameStatus.INVALID_DISPARITY)]
     if not lead:
         return {}
     backward = pipeline.fresh()

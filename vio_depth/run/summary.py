@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 from typing import Any
+
+from .record import read_frames_jsonl
 
 
 @dataclass
@@ -23,6 +27,10 @@ class RunSummary:
             (:meth:`~vio_depth.run.trajectory.TrajectoryReport.to_json`), or None.
         outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
         report: path of the report's ``index.html`` when one was written, else "".
+        verdict: whether the run gave enough metric depth (:class:`~vio_depth.run.verdict.RunVerdict`).
+        resumed_frames: frames replayed from an interrupted run (0: not resumed, -1: the
+            finished run was already there); not written to ``metrics.json``, so a resumed
+            run's file equals an uninterrupted one's.
     """
 
     frames_in_sequence: int
@@ -37,9 +45,39 @@ class RunSummary:
     trajectory: dict[str, Any] | None = None
     outputs: dict[str, Any] = field(default_factory=dict)
     report: str = ""
+    verdict: dict[str, Any] = field(default_factory=dict)
+    resumed_frames: int = 0
 
     def to_json(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        out.pop("resumed_frames")
+        return out
+
+
+def summary_of_folder(out_dir) -> RunSummary:
+    """The :class:`RunSummary` of a finished run folder: its ``metrics.json`` when there is
+    one, else counts rebuilt from ``frames.jsonl``."""
+    out_dir = Path(out_dir)
+    metrics = out_dir / "metrics.json"
+    if metrics.is_file():
+        try:
+            data = json.loads(metrics.read_text(encoding="utf-8"))
+            names = {f.name for f in fields(RunSummary)}
+            return RunSummary(**{k: v for k, v in data.items() if k in names})
+        except (OSError, ValueError, TypeError):
+            pass
+    header, frames = read_frames_jsonl(out_dir / "frames.jsonl")
+    counts: dict[str, int] = {}
+    for f in frames:
+        counts[str(f.get("status"))] = counts.get(str(f.get("status")), 0) + 1
+    seq = (header or {}).get("sequence", {})
+    return RunSummary(frames_in_sequence=int(seq.get("frames", len(frames))), frames_processed=len(frames),
+                      frames_with_depth=sum(f.get("alpha") is not None for f in frames), status_counts=counts,
+                      disparity_kind=(header or {}).get("disparity_kind", ""), run=header or {})
+
+
+#: the printed table notes a metrics row whose predictions cover less than this of the evaluated pixels
+COVERAGE_NOTE_BELOW = 0.99
 
 
 def format_table(summary: RunSummary) -> str:
@@ -53,6 +91,11 @@ def format_table(summary: RunSummary) -> str:
                 f"{name:10s} {m['delta1']:8.4f} {m['abs_rel']:8.4f} {m['rmse']:8.3f} "
                 f"{m['n_frames']:17d} {summary.frames_in_sequence:19d}"
             )
+        covered = [(name, m["coverage"]) for name, m in summary.metrics.items()
+                   if name != "oracle" and m.get("coverage") is not None and m["coverage"] < COVERAGE_NOTE_BELOW]
+        for name, coverage in covered:
+            lines.append(f"note: {name} has depth on {coverage:.0%} of the evaluated pixels; the metrics count the "
+                         "rest as max depth (e.g. NaN disparity pixels, docs/safety.md)")
     lines.append(
         f"metric depth for {summary.frames_with_depth} of {summary.frames_processed} processed frames "
         f"({summary.frames_in_sequence} in sequence); statuses: "

@@ -287,3 +287,16 @@ def test_sample_sequences_one_second_relative_translation(name):
     # measured: street median 0.06 %, p90 0.10 %; room median 0.55 %, p90 0.92 %
     # (room max 3.1 % at the first frames, before a bias fit is possible)
     assert np.median(errs) <= 0.02 and np.percentile(errs, 90) <= 0.02
+
+
+def test_implausible_imu_samples_are_refused_naming_the_sample():
+    """Issue 12: huge IMU values ended in "R: contains NaN or infinite values"."""
+    from vio_core.errors import InputError
+    from vio_depth.frame import MAX_ACCEL_M_S2, ImuData
+
+    t = np.arange(5) * 0.005
+    gyro, accel = np.zeros((5, 3)), np.tile([0.0, 0.0, 9.81], (5, 1))
+    ImuData(t, gyro, accel, np.eye(4))
+    accel[3, 0] = 10 * MAX_ACCEL_M_S2
+    with pytest.raises(InputError, match=r"imu sample 3 \(t=0.015000 s\): accel"):
+        ImuData(t, gyro, accel, np.eye(4))
