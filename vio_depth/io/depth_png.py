@@ -23,6 +23,8 @@ from .images import read_image_bytes
 
 #: KITTI / native-format depth scale: stored uint16 value per metre.
 DEPTH_PNG_SCALE = 256.0
+#: zlib level of the depth PNGs a run writes, chosen for speed (docs/benchmarks.md, "PNG compression")
+DEPTH_PNG_COMPRESSION = 1
 
 
 def read_depth_png(path, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
@@ -70,12 +72,14 @@ def encode_depth_uint16(depth, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
     return q
 
 
-def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
+def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE, compression: int = 9) -> None:
     """Write ``depth: (H, W)`` metres as a 16-bit PNG (see :func:`encode_depth_uint16`).
 
     NaN or <= 0 means invalid and is written as 0; valid depths are clipped to the uint16
     range, i.e. [1/scale, 65535/scale] metres. Parent folders must exist. The file is
     written under a temporary name and renamed into place, so it is never half-written.
+    ``compression``: zlib level 0-9 (9: smallest files, for datasets; runs use the faster
+    :data:`DEPTH_PNG_COMPRESSION`); the stored values are the same at every level.
 
     Raises:
         ShapeError: ``depth`` is not a 2-D float (or integer) array.
@@ -85,7 +89,7 @@ def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE) -> None:
     if path.suffix.lower() != ".png":
         raise InputError(f"{path}: depth maps are written as .png files")
     q = encode_depth_uint16(depth, scale)
-    ok, buf = cv2.imencode(".png", q, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    ok, buf = cv2.imencode(".png", q, [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
     if not ok:  # pragma: no cover - cv2 failure
         raise InputError(f"{path}: cannot encode depth PNG")
     try:

@@ -19,7 +19,7 @@ from ..frame import Frame
 from ..poses import PoseSource, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
 from .points import TwoViewPoints
-from .result import FrameResult, PointsOutcome
+from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
 
@@ -66,6 +66,15 @@ class Pipeline:
     # ------------------------------------------------------------------ per frame
     def process(self, frame: Frame) -> FrameResult:
         """Process the next frame of the stream and return its result (with ``depth``)."""
+        return self.process_prepared(self.prepare(frame))
+
+    def prepare(self, frame: Frame) -> PreparedFrame:
+        """The frame's stateless stages: image decoding, features, disparity.
+
+        They read nothing of the pipeline's state (keyframes, filter), so frames may be
+        prepared ahead of :meth:`process_prepared`, in another thread (one thread at a
+        time: the matcher's detector is not shared between threads).
+        """
         timings: dict[str, float] = {}
         clock = time.perf_counter
         features = None
@@ -80,7 +89,14 @@ class Pipeline:
         t = clock()
         disparity = self.disparity_source(frame)
         timings["disparity"] = clock() - t
+        return PreparedFrame(frame, features, disparity, timings)
 
+    def process_prepared(self, prepared: PreparedFrame) -> FrameResult:
+        """The stateful stages of a :meth:`prepare`-d frame, in stream order: pairing,
+        triangulation, fit, depth. ``process(frame)`` is ``process_prepared(prepare(frame))``."""
+        frame, features, disparity = prepared.frame, prepared.features, prepared.disparity
+        timings = dict(prepared.timings)
+        clock = time.perf_counter
         t = clock()
         spec = self.settings.points
         if self.points is not None:
@@ -93,6 +109,7 @@ class Pipeline:
                 uv, depth = spec.sample(gt, frame.index)
                 points = PointsOutcome(FrameStatus.OK, "", uv=uv, depth=depth)
         timings["points"] = clock() - t
+        timings.update(points.timings)
 
         result = FrameResult(frame.index, frame.stem, frame.timestamp, points.status, points.reason, spec, points,
                              timings=timings)

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from matchers import Features
+
 from ..evaluation import PointSourceSpec
+from ..frame import Frame
 from ..keyframes import Motion
 from ..rescale import AffineFit, RescaleResult
 from .status import FrameStatus, PairStatus
@@ -59,6 +62,7 @@ class PointsOutcome:
         depth: (N,) metres, z in this camera.
         sigma: (N,) metres, 1-sigma of ``depth``, or None (reference points: exact).
         confidence: (N,) matching confidence in [0, 1], or None.
+        timings: seconds of ``matching`` and ``triangulation``, summed over the pairs.
     """
 
     status: FrameStatus
@@ -69,6 +73,7 @@ class PointsOutcome:
     depth: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
     confidence: np.ndarray | None = field(default=None, repr=False)
+    timings: dict[str, float] = field(default_factory=dict, repr=False)
 
     @property
     def partners(self) -> list[int]:
@@ -120,6 +125,8 @@ class FrameResult:
         backfilled: the result comes from the offline backward pass.
         disparity_valid_fraction: fraction of finite pixels of the disparity map (None
             without a map).
+        depth_released: the frame had a depth map that :meth:`without_maps` released
+            (``has_depth`` stays True).
     """
 
     frame: int
@@ -140,10 +147,16 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)
     backfilled: bool = False
     disparity_valid_fraction: float | None = None
+    depth_released: bool = field(default=False, repr=False)
 
     @property
     def has_depth(self) -> bool:
-        return self.depth is not None
+        return self.depth is not None or self.depth_released
+
+    def without_maps(self) -> "FrameResult":
+        """A copy without the (H, W) depth and disparity maps, for keeping every frame's result
+        over a long run in constant memory per frame (points, fit and statuses are kept)."""
+        return replace(self, depth=None, disparity=None, depth_released=self.has_depth)
 
     @property
     def fit(self) -> AffineFit | None:
@@ -156,5 +169,27 @@ class FrameResult:
         return sum(v for k, v in self.timings.items() if k in PIPELINE_STAGES)
 
 
-#: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself
+#: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself (``points`` includes its
+#: sub-stages ``matching`` and ``triangulation``, also recorded)
 PIPELINE_STAGES = ("image", "disparity", "features", "points", "fit", "depth")
+
+
+@dataclass
+class PreparedFrame:
+    """A frame after the pipeline's stateless stages (:meth:`~vio_depth.pipeline.Pipeline.prepare`):
+    image decoding, feature extraction and the disparity map. They depend on nothing but the
+    frame, so they may run ahead of :meth:`~vio_depth.pipeline.Pipeline.process_prepared`,
+    in another thread.
+
+    Attributes:
+        frame: the frame; when its image was read, ``frame.image()`` returns the decoded
+            pixels without reading them again.
+        features: the frame's features (SfM points), else None.
+        disparity: (H, W) float affine-invariant disparity, or None (no map for this frame).
+        timings: seconds of the stages done: ``image``, ``features``, ``disparity``.
+    """
+
+    frame: Frame
+    features: Features | None
+    disparity: np.ndarray | None = field(repr=False)
+    timings: dict[str, float] = field(default_factory=dict)

@@ -26,6 +26,7 @@ from vio_core.errors import InputError, SettingsError
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
+from ..io.depth_png import DEPTH_PNG_COMPRESSION
 from ..pipeline import PipelineSettings
 from .verdict import MIN_DEPTH_FRACTION
 
@@ -52,6 +53,12 @@ class RunSettings:
         min_depth_fraction: a finished run in which fewer than this fraction of the processed
             frames got metric depth is reported as "nothing came out" (``vio-depth run``
             exits with code 3; :mod:`vio_depth.run.verdict`).
+        evaluate: evaluate each frame against the sequence's ground-truth depth, when it has
+            some (dense metrics, oracle, point accuracy); False skips that work
+            (``--no-evaluation``).
+        png_compression: zlib level 0-9 of the depth and uncertainty PNGs; the decoded values
+            are the same at every level, only size and encoding time differ
+            (docs/benchmarks.md, "PNG compression").
     """
 
     max_frames: int = 0
@@ -63,6 +70,8 @@ class RunSettings:
     export: ExportSettings = field(default_factory=ExportSettings)
     report: bool = False
     min_depth_fraction: float = MIN_DEPTH_FRACTION
+    evaluate: bool = True
+    png_compression: int = DEPTH_PNG_COMPRESSION
 
     def __post_init__(self):
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:
@@ -72,6 +81,9 @@ class RunSettings:
                                 f"{self.min_eval_depth!r}, {self.max_eval_depth!r}")
         if not 0.0 <= self.min_depth_fraction <= 1.0:
             raise SettingsError(f"min_depth_fraction must be in [0, 1], got {self.min_depth_fraction!r}")
+        if (isinstance(self.png_compression, bool) or not isinstance(self.png_compression, int)
+                or not 0 <= self.png_compression <= 9):
+            raise SettingsError(f"png_compression must be an integer 0-9, got {self.png_compression!r}")
         if not self.rpe_delta_m > 0:
             raise SettingsError(f"rpe_delta_m must be positive (metres), got {self.rpe_delta_m!r}")
 

@@ -21,14 +21,16 @@ from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metr
 from ..export import RunExporter
 from ..frame import Frame
 from ..io import Sequence
-from ..pipeline import FrameResult, FrameStatus, Pipeline
+from ..pipeline import FrameResult, FrameStatus, Pipeline, PreparedFrame
 from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
+from .overlap import OrderedWriter, Prefetcher
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
+from .timing import timing_summary
 from .trajectory import run_trajectory
 from .verdict import judge_run
 
@@ -50,7 +52,7 @@ def run_header(sequence: Sequence, pipeline: Pipeline, settings: RunSettings, co
 
 def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunSettings = RunSettings(), *,
                  progress: bool | None = None, command: list[str] | None = None,
-                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = ()) -> RunSummary:
+                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = (), overlap: bool = True) -> RunSummary:
     """Process ``sequence`` (or its first ``settings.max_frames`` frames) and write outputs to ``out_dir``.
 
     Everything is written into a staging folder next to ``out_dir`` and moved into place
@@ -68,6 +70,9 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
             atomically at the end) or ``"resume"`` (continue an interrupted run).
         inputs: further paths the run reads (disparity folder, model, config file):
             ``out_dir`` may not be, lie in or contain them, nor the sequence folder.
+        overlap: prepare the next frames (image, features, disparity) and write the outputs
+            in worker threads (:mod:`vio_depth.run.overlap`); False runs everything in this
+            thread, one stage after the other. Both give byte-identical outputs.
 
     Returns:
         :class:`RunSummary` (also written to ``metrics.json`` with ground truth);
@@ -97,7 +102,7 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary.resumed_frames = -1
         return summary
     try:
-        summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n)
+        summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap)
         folder.commit()
     except BaseException:
         folder.release()
@@ -107,15 +112,26 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     return summary
 
 
+def _prepare(sequence: Sequence, pipeline: Pipeline, i: int) -> PreparedFrame:
+    """Frame ``i`` through the pipeline's stateless stages (timed: ``load`` and the stages)."""
+    t = time.perf_counter()
+    frame = sequence[i]
+    load = time.perf_counter() - t
+    prepared = pipeline.prepare(frame)
+    prepared.timings["load"] = load
+    return prepared
+
+
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
-         plan: ResumePlan, progress: bool | None, n: int) -> RunSummary:
+         plan: ResumePlan, progress: bool | None, n: int, overlap: bool) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``."""
     out_dir = folder.staging
-    outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
+    outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty, png_compression=settings.png_compression)
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
     exporter = RunExporter(out_dir, export) if export.any else None
     t_start = time.perf_counter()
+    evaluate = settings.evaluate and sequence.has_gt_depth
     evaluate_points = not pipeline.settings.points.uses_ground_truth  # reference points come from the GT
 
     def finish_frame(frame: Frame, res: FrameResult, write: bool = True) -> tuple[FrameRecord, FrameEvaluation | None]:
@@ -126,7 +142,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             exporter.add_frame(frame, res, write=write)
         res.timings["write"] = time.perf_counter() - t
         evaluation = None
-        if sequence.has_gt_depth:
+        if evaluate:
             t = time.perf_counter()
             gt = frame.gt_depth()
             if gt is not None:
@@ -138,35 +154,51 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
 
     results: dict[int, FrameResult] = {}
     done: dict[int, tuple[FrameRecord, FrameEvaluation | None]] = {}
+
+    def write_job(i: int, frame: Frame, res: FrameResult, journal: bool = True):
+        """The writer's job for frame ``i``: its files, evaluation and record, then its journal line."""
+        replay = i < plan.start and journal
+
+        def job() -> None:
+            done[i] = finish_frame(frame, res, write=not replay)
+            if replay:
+                diff = record_difference(plan.records[i], done[i][0].to_json())
+                if diff:
+                    raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
+                                      f"result than the interrupted run ({diff}); give --overwrite to start over")
+            elif journal:
+                folder.append(done[i][0].to_json())
+            results[i] = res.without_maps()  # every frame's result is kept: without its (H, W) maps
+        return job
+
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
                disable=(not sys.stderr.isatty()) if progress is None else not progress, file=sys.stderr)
     with_depth = 0
     if plan.start:
         log.info("resuming %s: replaying frames 0-%d, then continuing", folder.out, plan.start - 1)
-    for i in bar:
-        t = time.perf_counter()
-        frame = sequence[i]
-        load = time.perf_counter() - t
-        res = pipeline.process(frame)
-        res.timings["load"] = load
-        results[i] = res
-        replay = i < plan.start
-        done[i] = finish_frame(frame, res, write=not replay)
-        if replay:
-            diff = record_difference(plan.records[i], done[i][0].to_json())
-            if diff:
-                raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
-                                  f"result than the interrupted run ({diff}); give --overwrite to start over")
-        else:
-            folder.append(done[i][0].to_json())
-        with_depth += res.has_depth
-        bar.set_postfix(depth=f"{with_depth}/{i + 1}")
-    if settings.backfill and pipeline.points is not None:
-        for i, (frame, res) in _backfill(sequence, pipeline, results, n).items():
-            res.backfilled = True
-            res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
-            results[i] = res
-            done[i] = finish_frame(frame, res)
+    writer = OrderedWriter(threaded=overlap)
+    t_backfill = 0.0
+    try:
+        with Prefetcher(lambda i: _prepare(sequence, pipeline, i), range(n), threaded=overlap) as frames:
+            for i in bar:
+                prepared = frames.get()
+                res = pipeline.process_prepared(prepared)
+                results[i] = res
+                writer.submit(write_job(i, prepared.frame, res))
+                with_depth += res.has_depth
+                bar.set_postfix(depth=f"{with_depth}/{i + 1}")
+        if settings.backfill and pipeline.points is not None:
+            t_backfill = time.perf_counter()
+            for i, (frame, res) in backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap).items():
+                res.backfilled = True
+                res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
+                results[i] = res
+                writer.submit(write_job(i, frame, res, journal=False))
+            t_backfill = time.perf_counter() - t_backfill
+        writer.finish()
+    except BaseException:
+        writer.drain_quietly()  # the frames already handed over are completed and journaled
+        raise
 
     records = [done[i][0] for i in range(n)]
     evaluations = [done[i][1] for i in range(n)]
@@ -180,6 +212,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         run=header.to_json(),
         resumed_frames=plan.start,
     )
+    timing_frames = [records[i].timings for i in range(n)]
     for r in records:
         summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
     dense = [e.metrics for e in evaluations if e is not None and e.metrics is not None]
@@ -196,9 +229,11 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
     summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
+    summary.seconds = round(time.perf_counter() - t_start, 2)
+    summary.timings = timing_summary(timing_frames, time.perf_counter() - t_start, overlap=overlap,
+                                     backfill_s=t_backfill)
     # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
-    outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
-                   trajectory.trajectory)
+    outputs.finish(header, records, summary, trajectory.trajectory)
     if settings.report:
         summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
@@ -206,14 +241,17 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     return summary
 
 
-def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameResult], n: int) -> dict:
+def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict, n: int, *,
+                            overlap: bool = False) -> dict:
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about
     pairing or points (not a missing disparity). A fresh pipeline with the same settings
     processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
     frames beyond the last leading frame, so each leading frame meets keyframes from its
-    future. Returns ``{index: (frame, FrameResult)}`` for the frames that now have depth.
+    future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
+    :class:`FrameResult`); ``overlap`` prepares the frames in a worker thread. Returns
+    ``{index: (frame, FrameResult)}`` for the frames that now have depth.
     """
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
     if first_ok is None or first_ok == 0:
@@ -225,13 +263,11 @@ def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameRe
     backward = pipeline.fresh()
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
-    for i in range(last, -1, -1):
-        t = time.perf_counter()
-        frame = sequence[i]
-        load = time.perf_counter() - t
-        res = backward.process(frame)
-        res.timings["load"] = load
-        if i in lead and res.depth is not None:
-            out[i] = (frame, res)
+    with Prefetcher(lambda i: _prepare(sequence, backward, i), range(last, -1, -1), threaded=overlap) as frames:
+        for i in range(last, -1, -1):
+            prepared = frames.get()
+            res = backward.process_prepared(prepared)
+            if i in lead and res.depth is not None:
+                out[i] = (prepared.frame, res)
     log.info("backfill: %d of %d leading frames got depth from later keyframes", len(out), len(lead))
     return out

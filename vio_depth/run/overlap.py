@@ -1,0 +1,194 @@
+"""Overlap of a run's stages: the next frames are prepared in one worker, the outputs written in another.
+
+A run has three lanes (docs/benchmarks.md, "Throughput"):
+
+* **prefetch** (:class:`Prefetcher`): the pipeline's stateless stages of the next frames,
+  ahead of time: reading and decoding the image, feature extraction and the disparity map
+  (file, SIMULATED or model inference; :meth:`vio_depth.pipeline.Pipeline.prepare`);
+* **pipeline** (the calling thread): the stateful stages in frame order: pairing,
+  matching, triangulation, fit, depth (:meth:`~vio_depth.pipeline.Pipeline.process_prepared`);
+* **writer** (:class:`OrderedWriter`): encoding and writing the outputs (depth PNG,
+  uncertainty, exports), the ground-truth evaluation and the journal line of each frame,
+  in frame order.
+
+Workers are **threads**: OpenCV, numpy and torch release the GIL in their heavy calls
+(decoding, SIFT, BLAS, PNG encoding, inference), and a thread shares the sequence, the
+matcher and the disparity model without copying them. TODO-MEASURE threads vs processes.
+
+Guarantees:
+
+* **Bounded memory**: each worker is at most ``depth`` items ahead; a full queue blocks the
+  producer.
+* **Same results**: the same code runs in the same order per lane; the pipeline's state
+  is only touched by the calling thread, the outputs only by the writer, one frame after
+  the other. ``threaded=False`` runs everything inline (the sequential run), which gives
+  byte-identical outputs (tests/vio_depth/run/test_overlap.py).
+* **Errors**: the exception a worker raises is re-raised, as the same object, in the
+  calling thread (so the command line prints the same one-line error as a sequential run);
+  the writer skips every job after a failed one, so the journal never records a frame
+  whose files are not complete, and the staging folder stays resumable.
+* **Interruption**: :meth:`OrderedWriter.cancel` lets the job in progress finish (every
+  file is written under a temporary name and renamed, so none is ever half-written) and
+  skips the rest.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from typing import Any, Callable, Iterable
+
+#: items a worker may run ahead of the pipeline (prefetched frames, results waiting to be written)
+DEFAULT_DEPTH = 2
+_POLL_S = 0.05
+
+
+class Prefetcher:
+    """``produce(i)`` for each of ``indices``, in order, at most ``depth`` results ahead of :meth:`get`.
+
+    Args:
+        produce: index -> value (e.g. a prepared frame); may raise.
+        indices: the indices, in the order :meth:`get` returns their values.
+        depth: values produced ahead (the queue's bound).
+        threaded: False runs ``produce`` inline in :meth:`get` (the sequential run).
+    """
+
+    def __init__(self, produce: Callable[[int], Any], indices: Iterable[int], depth: int = DEFAULT_DEPTH, *,
+                 threaded: bool = True, name: str = "vio-depth-prefetch"):
+        self._produce = produce
+        self._indices = iter(indices)
+        self._threaded = threaded
+        self._stop = threading.Event()
+        self._queue: queue.Queue = queue.Queue(maxsize=max(1, depth))
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._work, name=name, daemon=True)
+            self._thread.start()
+
+    def _work(self) -> None:
+        for i in self._indices:
+            if self._stop.is_set():
+                return
+            try:
+                item = (self._produce(i), None)
+            except BaseException as exc:  # handed to the consumer, raised there
+                item = (None, exc)
+            while not self._stop.is_set():
+                try:
+                    self._queue.put(item, timeout=_POLL_S)
+                    break
+                except queue.Full:
+                    continue
+            if item[1] is not None:
+                return
+
+    def get(self) -> Any:
+        """The next value; re-raises what ``produce`` raised for it.
+
+        Raises:
+            StopIteration: every index was delivered (inline mode), or the worker ended early.
+        """
+        if not self._threaded:
+            return self._produce(next(self._indices))
+        while True:
+            try:
+                value, exc = self._queue.get(timeout=_POLL_S)
+                break
+            except queue.Empty:
+                if not self._thread.is_alive() and self._queue.empty():
+                    raise StopIteration from None
+        if exc is not None:
+            raise exc
+        return value
+
+    def close(self) -> None:
+        """Stop producing and wait for the worker (its current item is finished, then dropped)."""
+        self._stop.set()
+        if self._thread is not None:
+            while self._thread.is_alive():
+                try:
+                    self._queue.get_nowait()
+                except queue.Empty:
+                    self._thread.join(_POLL_S)
+
+    def __enter__(self) -> "Prefetcher":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class OrderedWriter:
+    """Runs submitted jobs one after the other, in submission order, at most ``depth`` waiting.
+
+    The first job that raises stops the writer: later jobs are skipped and the exception is
+    re-raised by the next :meth:`submit` or by :meth:`finish`.
+
+    Args:
+        depth: jobs waiting at most (``submit`` blocks beyond).
+        threaded: False runs each job inline in :meth:`submit` (the sequential run).
+    """
+
+    def __init__(self, depth: int = DEFAULT_DEPTH, *, threaded: bool = True, name: str = "vio-depth-writer"):
+        self._threaded = threaded
+        self._error: BaseException | None = None
+        self._cancel = threading.Event()
+        self._queue: queue.Queue = queue.Queue(maxsize=max(1, depth))
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._work, name=name, daemon=True)
+            self._thread.start()
+
+    def _work(self) -> None:
+        while True:
+            job = self._queue.get()
+            if job is None:
+                return
+            if self._error is None and not self._cancel.is_set():
+                try:
+                    job()
+                except BaseException as exc:  # re-raised in the submitting thread
+                    self._error = exc
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def submit(self, job: Callable[[], None]) -> None:
+        """Queue ``job`` (run it now when not threaded); re-raises an earlier job's error."""
+        self._raise()
+        if not self._threaded:
+            job()
+            return
+        self._queue.put(job)
+
+    def finish(self) -> None:
+        """Wait until every submitted job ran; re-raises the first error."""
+        if self._thread is not None and self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        self._raise()
+
+    def drain_quietly(self) -> None:
+        """After an error elsewhere: let the jobs already submitted run (unless one fails:
+        the rest are then skipped), wait for them, and raise nothing (the caller is
+        raising its own error)."""
+        if self._thread is not None and self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+
+    def cancel(self) -> None:
+        """Skip the jobs not started yet and wait for the one in progress (its files complete)."""
+        self._cancel.set()
+        if self._thread is None:
+            return
+        while self._thread.is_alive():
+            try:
+                self._queue.put(None, timeout=_POLL_S)
+            except queue.Full:
+                try:
+                    self._queue.get_nowait()
+                except queue.Empty:
+                    pass
+                continue
+            self._thread.join()
