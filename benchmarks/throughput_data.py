@@ -20,16 +20,21 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from vio_core.camera import Camera
-from vio_depth.disparity import DisparitySettings, create_disparity_source
+from vio_depth.disparity import DisparitySettings, DisparitySpec, create_disparity_source, disparity_preset
 from vio_depth.io import open_sequence
+from vio_depth.io.depth_png import write_bytes_atomic, write_depth_png
 from vio_depth.io.tables import write_tum_trajectory
-from vio_depth.simulate.generate import generate_sample, sample_spec
+from vio_depth.simulate.generate import camera_poses, sample_spec
+from vio_depth.simulate.render import render_view
+from vio_depth.simulate.scene_library import build_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_TINY = ROOT.parent / "shared" / "data" / "kitti_tiny" / "2011_09_26" / "2011_09_26_drive_0023_sync"
@@ -59,10 +64,26 @@ def write_disparity_files(sequence, folder: Path, settings: DisparitySettings | 
         np.save(folder / f"{frame.stem}.npy", np.asarray(source(frame), dtype=np.float32))
 
 
-def prepare_rendered(name: str, cache: Path, log=print) -> Path:
-    """The rendered sequence ``name`` of :data:`RENDERED` under ``cache`` (rendered on first use).
+class RenderingUnfinished(Exception):
+    """The rendering budget ran out; calling again continues where it stopped."""
 
-    Returns the folder, holding the native sequence and ``disparity/<stem>.npy``.
+
+def _spec(name: str):
+    sample, camera, rate, n = RENDERED[name]
+    return replace(sample_spec(sample), name=name, camera=camera, frame_rate_hz=rate, n_frames=n)
+
+
+def prepare_rendered(name: str, cache: Path, budget_s: float = 600.0, log=print) -> Path:
+    """The rendered sequence ``name`` of :data:`RENDERED` under ``cache``, rendered on first use.
+
+    Rendering is resumable: frames already on disk are kept, and after ``budget_s`` seconds
+    it stops with :class:`RenderingUnfinished` (call again to continue), so no single call
+    runs for long on a shared machine. Frames are rendered exactly as
+    ``vio_depth.simulate.generate_sample`` does (same scene, trajectory, noise seeds); the
+    folder holds a native sequence with ground-truth poses and depth (no IMU) and
+    ``disparity/<stem>.npy``, the sequence's SIMULATED disparity.
+
+    Returns the folder.
     """
     out = cache / name
     want = _describe(name)
@@ -71,13 +92,44 @@ def prepare_rendered(name: str, cache: Path, log=print) -> Path:
             return out
     except (OSError, ValueError):
         pass
-    sample, camera, rate, n = RENDERED[name]
-    spec = replace(sample_spec(sample), name=name, camera=camera, frame_rate_hz=rate, n_frames=n)
+    spec = _spec(name)
+    n = spec.n_frames
     tmp = cache / f".{name}.rendering"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.parent.mkdir(parents=True, exist_ok=True)
-    log(f"rendering {name}: {n} frames of {camera.width}x{camera.height} into {out} (once; takes minutes)")
-    generate_sample(spec, tmp, progress=log)
+    for sub in ("images", "depth", "disparity"):
+        (tmp / sub).mkdir(parents=True, exist_ok=True)
+    t_frames = spec.frame_times(n)
+    poses = camera_poses(spec, spec.make_trajectory(spec.seed), t_frames)
+    scene = None
+    start = time.perf_counter()
+    log(f"rendering {name}: {n} frames of {spec.camera.width}x{spec.camera.height} into {out} (once; minutes)")
+    for i in range(n):
+        stem = f"{i:06d}"
+        image, depth = tmp / "images" / f"{stem}.jpg", tmp / "depth" / f"{stem}.png"
+        if image.is_file() and depth.is_file():
+            continue
+        if time.perf_counter() - start > budget_s:
+            raise RenderingUnfinished(f"{name}: rendering budget of {budget_s:.0f} s used up at frame {i} of {n}; "
+                                      "run again to continue")
+        scene = build_scene(spec.scene, spec.scene_seed) if scene is None else scene
+        view = render_view(scene, spec.camera, poses[i], settings=spec.render, noise_seed=[spec.seed, 3, i])
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(view.image, cv2.COLOR_RGB2BGR),
+                               [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality])
+        write_depth_png(depth, view.depth)
+        write_bytes_atomic(image, buf.tobytes())  # the image last: it marks the frame as done
+        if (i + 1) % 10 == 0:
+            log(f"{name}: frame {i + 1}/{n} ({time.perf_counter() - start:.0f} s)")
+    (tmp / "frames.txt").write_text("# timestamp image_path\n" + "".join(
+        f"{t:.6f} images/{i:06d}.jpg\n" for i, t in enumerate(t_frames)))
+    write_tum_trajectory(tmp / "poses.txt", t_frames, poses)
+    c = spec.camera
+    meta = {"format": "vio-depth-sequence", "version": 1, "name": name,
+            "camera": {"width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                       "dist": []},
+            "frames": "frames.txt", "poses": "poses.txt", "depth": {"folder": "depth", "scale": 256.0},
+            "disparity": DisparitySpec.simulated(spec.disparity_seed, disparity_preset("default")).to_json(),
+            "metadata": {"simulated": True, "generator": "benchmarks/throughput_data.py", "scene": spec.scene,
+                         "description": f"SIMULATED (rendered) {spec.scene} at {c.width}x{c.height}"}}
+    (tmp / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
     write_disparity_files(open_sequence(tmp), tmp / "disparity")
     (tmp / MARKER).write_text(json.dumps(want))
     shutil.rmtree(out, ignore_errors=True)
