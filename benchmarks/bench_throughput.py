@@ -146,6 +146,26 @@ def peak_rss_kib(view: Path, out: Path, pairing: str) -> int:
     return int(usage.ru_maxrss)
 
 
+def png_study(depth_maps: list[np.ndarray], repeats: int) -> None:
+    """Encoding time and size of the run's depth PNGs (uint16 metres x 256) per zlib level and strategy."""
+    print(f"\nPNG compression of {len(depth_maps)} depth maps of {depth_maps[0].shape[1]}x{depth_maps[0].shape[0]} "
+          "(cv2.imencode; best of the repeats; decoded values identical at every setting)")
+    print(f"  {'level':>5s} {'strategy':>9s} {'ms/map':>7s} {'KiB/map':>8s}")
+    strategies = {"default": cv2.IMWRITE_PNG_STRATEGY_DEFAULT, "filtered": cv2.IMWRITE_PNG_STRATEGY_FILTERED,
+                  "rle": cv2.IMWRITE_PNG_STRATEGY_RLE, "huffman": cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY}
+    for level in (0, 1, 2, 3, 6, 9):
+        for name, strategy in strategies.items():
+            if level == 0 and name != "default":
+                continue
+            params = [cv2.IMWRITE_PNG_COMPRESSION, level, cv2.IMWRITE_PNG_STRATEGY, strategy]
+            best, size = np.inf, 0
+            for _ in range(repeats):
+                t = time.perf_counter()
+                size = sum(len(cv2.imencode(".png", q, params)[1]) for q in depth_maps)
+                best = min(best, time.perf_counter() - t)
+            print(f"  {level:5d} {name:>9s} {best / len(depth_maps) * 1e3:7.1f} {size / len(depth_maps) / 1024:8.0f}")
+
+
 # ----------------------------------------------------------------------------- driver
 def prepare(name: str, cache: Path) -> Path | None:
     """The timed view of dataset ``name`` (None when its data are absent)."""
@@ -212,6 +232,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-rss", action="store_true", help="skip the 100- vs 1000-frame peak memory runs")
     ap.add_argument("--rss-frames", type=int, nargs=2, default=[100, 1000], metavar=("SHORT", "LONG"))
     ap.add_argument("--no-paper", action="store_true", help="skip the paper-reference baseline")
+    ap.add_argument("--png", action="store_true", help="also time the depth PNG encoding per zlib level/strategy")
     ap.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads for everything (default: "
                                                                  "OpenCV's default)")
     args = ap.parse_args(argv)
@@ -231,6 +252,13 @@ def main(argv=None) -> int:
         if name == "street_kitti":
             ok &= res["fps"]["run"] >= 0.8 * res["fps"]["sift"]
             ok &= paper is None or res["fps"]["run"] >= 2.0 * res["fps"]["paper"]
+    if args.png:
+        view = prepare("street_kitti", args.cache)
+        out = Path(tempfile.mkdtemp(prefix="bench_throughput_png_")) / "out"
+        run_seconds(view, out, "kitti")
+        maps = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((out / "depth").glob("*.png"))[::5]]
+        shutil.rmtree(out.parent, ignore_errors=True)
+        png_study(maps, args.repeats)
     if not args.no_rss:
         rendered = data.prepare_rendered("street_kitti", args.cache)
         rss = {}

@@ -11,7 +11,7 @@ import logging
 import time
 from dataclasses import replace
 
-from matchers import Matcher, create_matcher
+from matchers import Features, Matcher, create_matcher
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
@@ -68,17 +68,18 @@ class Pipeline:
         """Process the next frame of the stream and return its result (with ``depth``)."""
         return self.process_prepared(self.prepare(frame))
 
-    def prepare(self, frame: Frame) -> PreparedFrame:
+    def prepare(self, frame: Frame, features: Features | None = None) -> PreparedFrame:
         """The frame's stateless stages: image decoding, features, disparity.
 
         They read nothing of the pipeline's state (keyframes, filter), so frames may be
         prepared ahead of :meth:`process_prepared`, in another thread (one thread at a
-        time: the matcher's detector is not shared between threads).
+        time: the matcher's detector is not shared between threads). ``features``: this
+        frame's features extracted earlier by the same matcher (the image is then not read
+        here).
         """
         timings: dict[str, float] = {}
         clock = time.perf_counter
-        features = None
-        if self.points is not None:
+        if self.points is not None and features is None:
             t = clock()
             image = frame.image()  # read once: a model disparity source gets the same pixels
             frame = replace(frame, load_image=lambda: image)

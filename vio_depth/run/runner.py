@@ -14,6 +14,7 @@ from typing import Iterable
 
 from tqdm import tqdm
 
+from matchers import Features
 from vio_core.errors import InputError
 
 from .._version import __version__
@@ -112,12 +113,12 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     return summary
 
 
-def _prepare(sequence: Sequence, pipeline: Pipeline, i: int) -> PreparedFrame:
+def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features | None = None) -> PreparedFrame:
     """Frame ``i`` through the pipeline's stateless stages (timed: ``load`` and the stages)."""
     t = time.perf_counter()
     frame = sequence[i]
     load = time.perf_counter() - t
-    prepared = pipeline.prepare(frame)
+    prepared = pipeline.prepare(frame, features)
     prepared.timings["load"] = load
     return prepared
 
@@ -178,6 +179,10 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         log.info("resuming %s: replaying frames 0-%d, then continuing", folder.out, plan.start - 1)
     writer = OrderedWriter(threaded=overlap)
     t_backfill = 0.0
+    backfill = settings.backfill and pipeline.points is not None
+    # the backward pass re-uses the features of the first frames (bounded: see _keep_features)
+    features: dict[int, Features] = {}
+    first_ok = None
     try:
         with Prefetcher(lambda i: _prepare(sequence, pipeline, i), range(n), threaded=overlap) as frames:
             for i in bar:
@@ -186,10 +191,15 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
                 results[i] = res
                 writer.submit(write_job(i, prepared.frame, res))
                 with_depth += res.has_depth
+                first_ok = i if first_ok is None and res.has_depth else first_ok
+                if backfill and _keep_features(i, first_ok, pipeline.settings.pairing.buffer_size):
+                    features[i] = prepared.features
                 bar.set_postfix(depth=f"{with_depth}/{i + 1}")
-        if settings.backfill and pipeline.points is not None:
+        if backfill:
             t_backfill = time.perf_counter()
-            for i, (frame, res) in backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap).items():
+            back = backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap, features=features)
+            features.clear()
+            for i, (frame, res) in back.items():
                 res.backfilled = True
                 res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
                 results[i] = res
@@ -241,8 +251,17 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     return summary
 
 
+def _keep_features(i: int, first_ok: int | None, buffer_size: int) -> bool:
+    """Whether frame ``i``'s features may serve the backward pass: it reaches at most
+    ``2 * buffer_size`` frames beyond the frame before the first one with depth; while no
+    frame has depth yet, at most ``4 * buffer_size`` frames are kept (memory stays bounded)."""
+    if first_ok is None:
+        return i < 4 * buffer_size
+    return i < first_ok + 2 * buffer_size
+
+
 def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict, n: int, *,
-                            overlap: bool = False) -> dict:
+                            overlap: bool = False, features: dict | None = None) -> dict:
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about
@@ -250,7 +269,8 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
     frames beyond the last leading frame, so each leading frame meets keyframes from its
     future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
-    :class:`FrameResult`); ``overlap`` prepares the frames in a worker thread. Returns
+    :class:`FrameResult`); ``overlap`` prepares the frames in a worker thread;
+    ``features`` maps indices to features the forward pass extracted (not extracted again). Returns
     ``{index: (frame, FrameResult)}`` for the frames that now have depth.
     """
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
@@ -263,7 +283,9 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     backward = pipeline.fresh()
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
-    with Prefetcher(lambda i: _prepare(sequence, backward, i), range(last, -1, -1), threaded=overlap) as frames:
+    features = {} if features is None else features
+    with Prefetcher(lambda i: _prepare(sequence, backward, i, features.get(i)), range(last, -1, -1),
+                    threaded=overlap) as frames:
         for i in range(last, -1, -1):
             prepared = frames.get()
             res = backward.process_prepared(prepared)
