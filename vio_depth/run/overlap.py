@@ -34,13 +34,43 @@ Guarantees:
 
 from __future__ import annotations
 
+import contextlib
+import os
 import queue
 import threading
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
+
+import cv2
 
 #: items a worker may run ahead of the pipeline (prefetched frames, results waiting to be written)
 DEFAULT_DEPTH = 2
 _POLL_S = 0.05
+
+
+def overlap_opencv_threads(cpus: int | None = None) -> int:
+    """OpenCV's thread count while a run overlaps: the cores the pipeline and writer lanes
+    leave to the prefetch lane's SIFT, at least 1 (2 cores: 1, i.e. OpenCV's pool off)."""
+    cpus = (os.cpu_count() or 1) if cpus is None else cpus
+    return max(1, cpus - 2)
+
+
+@contextlib.contextmanager
+def opencv_threads(n: int | None) -> Iterator[None]:
+    """``cv2.setNumThreads(n)`` for the duration (None: unchanged), restored afterwards.
+
+    OpenCV's pool and the run's own threads compete for the same cores; on 2 shared cores
+    SIFT with OpenCV's 2 threads was slower than with 1 (docs/benchmarks.md). The thread
+    count changes no result: SIFT sorts its keypoints whatever thread found them.
+    """
+    if n is None:
+        yield
+        return
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
 
 
 class Prefetcher:

@@ -27,7 +27,7 @@ from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
-from .overlap import OrderedWriter, Prefetcher
+from .overlap import OrderedWriter, Prefetcher, opencv_threads, overlap_opencv_threads
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
@@ -72,8 +72,10 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         inputs: further paths the run reads (disparity folder, model, config file):
             ``out_dir`` may not be, lie in or contain them, nor the sequence folder.
         overlap: prepare the next frames (image, features, disparity) and write the outputs
-            in worker threads (:mod:`vio_depth.run.overlap`); False runs everything in this
-            thread, one stage after the other. Both give byte-identical outputs.
+            in worker threads (:mod:`vio_depth.run.overlap`), with OpenCV's own thread pool
+            reduced to the cores left over (:func:`~vio_depth.run.overlap.overlap_opencv_threads`);
+            False runs everything in this thread, one stage after the other. Both give
+            byte-identical outputs.
 
     Returns:
         :class:`RunSummary` (also written to ``metrics.json`` with ground truth);
@@ -103,7 +105,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary.resumed_frames = -1
         return summary
     try:
-        summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap)
+        with opencv_threads(overlap_opencv_threads() if overlap else None):
+            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap)
         folder.commit()
     except BaseException:
         folder.release()

@@ -225,3 +225,17 @@ def test_interruption_leaves_complete_files_and_a_resumable_folder(mini_street, 
             assert read_depth_png(staging / "uncertainty" / f"{r['stem']}.png").shape == (256, 640)
     summary = run_sequence(seq, Pipeline(sequence=seq), out, RunSettings(uncertainty=True), mode="resume")
     assert summary.resumed_frames == 7 and summary.frames_processed == 10
+
+
+def test_opencv_threads_leave_the_cores_of_the_other_lanes_and_are_restored():
+    import cv2
+
+    from vio_depth.run.overlap import opencv_threads, overlap_opencv_threads
+
+    assert [overlap_opencv_threads(c) for c in (1, 2, 3, 16)] == [1, 1, 1, 14]
+    before = cv2.getNumThreads()
+    with opencv_threads(1):
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == before
+    with opencv_threads(None):
+        assert cv2.getNumThreads() == before
