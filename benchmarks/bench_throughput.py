@@ -56,6 +56,7 @@ from matchers import SiftSettings  # noqa: E402
 from vio_depth.cli import main as vio_depth_main  # noqa: E402
 from vio_depth.disparity import FileDisparity  # noqa: E402
 from vio_depth.io import open_sequence  # noqa: E402
+from vio_depth.io.depth_png import FAST_PNG_PARAMS  # noqa: E402
 
 #: dataset -> (source, frames in the timed view, pairing preset, paper-reference preset)
 DATASETS = {
@@ -146,24 +147,40 @@ def peak_rss_kib(view: Path, out: Path, pairing: str) -> int:
     return int(usage.ru_maxrss)
 
 
+#: (label, cv2.imencode parameters) compared by --png
+PNG_CONFIGS = [
+    ("zlib 9, adaptive filters (before)", [cv2.IMWRITE_PNG_COMPRESSION, 9]),
+    ("zlib 9, filtered strategy", [cv2.IMWRITE_PNG_COMPRESSION, 9, cv2.IMWRITE_PNG_STRATEGY,
+                                   cv2.IMWRITE_PNG_STRATEGY_FILTERED]),
+    ("zlib 6, adaptive filters", [cv2.IMWRITE_PNG_COMPRESSION, 6]),
+    ("zlib 1, adaptive filters", [cv2.IMWRITE_PNG_COMPRESSION, 1]),
+    ("zlib 0 (stored)", [cv2.IMWRITE_PNG_COMPRESSION, 0]),
+    ("RLE, SUB filter", [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+                         cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]),
+    ("Huffman only, no filter", [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
+                                 cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY, cv2.IMWRITE_PNG_FILTER,
+                                 cv2.IMWRITE_PNG_FILTER_NONE]),
+    ("Huffman only, SUB filter (now)", list(FAST_PNG_PARAMS)),
+]
+
+
 def png_study(depth_maps: list[np.ndarray], repeats: int) -> None:
-    """Encoding time and size of the run's depth PNGs (uint16 metres x 256) per zlib level and strategy."""
-    print(f"\nPNG compression of {len(depth_maps)} depth maps of {depth_maps[0].shape[1]}x{depth_maps[0].shape[0]} "
-          "(cv2.imencode; best of the repeats; decoded values identical at every setting)")
-    print(f"  {'level':>5s} {'strategy':>9s} {'ms/map':>7s} {'KiB/map':>8s}")
-    strategies = {"default": cv2.IMWRITE_PNG_STRATEGY_DEFAULT, "filtered": cv2.IMWRITE_PNG_STRATEGY_FILTERED,
-                  "rle": cv2.IMWRITE_PNG_STRATEGY_RLE, "huffman": cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY}
-    for level in (0, 1, 2, 3, 6, 9):
-        for name, strategy in strategies.items():
-            if level == 0 and name != "default":
-                continue
-            params = [cv2.IMWRITE_PNG_COMPRESSION, level, cv2.IMWRITE_PNG_STRATEGY, strategy]
-            best, size = np.inf, 0
-            for _ in range(repeats):
-                t = time.perf_counter()
-                size = sum(len(cv2.imencode(".png", q, params)[1]) for q in depth_maps)
-                best = min(best, time.perf_counter() - t)
-            print(f"  {level:5d} {name:>9s} {best / len(depth_maps) * 1e3:7.1f} {size / len(depth_maps) / 1024:8.0f}")
+    """Encoding time and size of the run's depth PNGs (uint16 metres x 256) per encoder setting."""
+    print(f"\nPNG encoding of {len(depth_maps)} depth maps of {depth_maps[0].shape[1]}x{depth_maps[0].shape[0]} "
+          "(cv2.imencode, 1 OpenCV thread, best of the repeats; the decoded values are identical for all)")
+    print(f"  {'setting':36s} {'ms/map':>7s} {'KiB/map':>8s}")
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    for label, params in PNG_CONFIGS:
+        best, size = np.inf, 0
+        for _ in range(repeats):
+            t = time.perf_counter()
+            size = sum(len(cv2.imencode(".png", q, params)[1]) for q in depth_maps)
+            best = min(best, time.perf_counter() - t)
+        assert all(np.array_equal(cv2.imdecode(cv2.imencode(".png", q, params)[1], cv2.IMREAD_UNCHANGED), q)
+                   for q in depth_maps)
+        print(f"  {label:36s} {best / len(depth_maps) * 1e3:7.1f} {size / len(depth_maps) / 1024:8.0f}")
+    cv2.setNumThreads(threads)
 
 
 # ----------------------------------------------------------------------------- driver

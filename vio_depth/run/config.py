@@ -26,7 +26,6 @@ from vio_core.errors import InputError, SettingsError
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
-from ..io.depth_png import DEPTH_PNG_COMPRESSION
 from ..pipeline import PipelineSettings
 from .verdict import MIN_DEPTH_FRACTION
 
@@ -56,9 +55,6 @@ class RunSettings:
         evaluate: evaluate each frame against the sequence's ground-truth depth, when it has
             some (dense metrics, oracle, point accuracy); False skips that work
             (``--no-evaluation``).
-        png_compression: zlib level 0-9 of the depth and uncertainty PNGs; the decoded values
-            are the same at every level, only size and encoding time differ
-            (docs/benchmarks.md, "PNG compression").
     """
 
     max_frames: int = 0
@@ -71,7 +67,6 @@ class RunSettings:
     report: bool = False
     min_depth_fraction: float = MIN_DEPTH_FRACTION
     evaluate: bool = True
-    png_compression: int = DEPTH_PNG_COMPRESSION
 
     def __post_init__(self):
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:
@@ -81,9 +76,6 @@ class RunSettings:
                                 f"{self.min_eval_depth!r}, {self.max_eval_depth!r}")
         if not 0.0 <= self.min_depth_fraction <= 1.0:
             raise SettingsError(f"min_depth_fraction must be in [0, 1], got {self.min_depth_fraction!r}")
-        if (isinstance(self.png_compression, bool) or not isinstance(self.png_compression, int)
-                or not 0 <= self.png_compression <= 9):
-            raise SettingsError(f"png_compression must be an integer 0-9, got {self.png_compression!r}")
         if not self.rpe_delta_m > 0:
             raise SettingsError(f"rpe_delta_m must be positive (metres), got {self.rpe_delta_m!r}")
 

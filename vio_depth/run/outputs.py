@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from ..evaluation import CameraTrajectory, write_trajectory_tum
-from ..io.depth_png import DEPTH_PNG_COMPRESSION, write_bytes_atomic, write_depth_png
+from ..io.depth_png import write_bytes_atomic, write_depth_png
 from ..pipeline import FrameResult
 from ..rescale import depth_sigma_map
 from .record import FrameRecord, RunHeader
@@ -26,13 +26,12 @@ class RunOutputs:
     Layout: ``depth/<stem>.png`` (uint16, metres x 256, 0 = invalid), with ``uncertainty``
     also ``uncertainty/<stem>.png`` (1-sigma of the depth from the fit's covariance, same
     encoding), ``frames.jsonl``, ``trajectory.tum`` (the camera poses the run used, TUM
-    format, camera-to-world: :mod:`vio_depth.run.trajectory`) and ``metrics.json``.
-    ``png_compression``: zlib level of the PNGs (:data:`~vio_depth.io.depth_png.DEPTH_PNG_COMPRESSION`).
+    format, camera-to-world: :mod:`vio_depth.run.trajectory`) and ``metrics.json``. The PNGs
+    are encoded for speed (:data:`~vio_depth.io.depth_png.FAST_PNG_PARAMS`).
     """
 
-    def __init__(self, out_dir, *, uncertainty: bool = False, png_compression: int = DEPTH_PNG_COMPRESSION):
+    def __init__(self, out_dir, *, uncertainty: bool = False):
         self.root = Path(out_dir)
-        self.png_compression = png_compression
         self.depth_dir = self.root / "depth"
         self.sigma_dir = self.root / "uncertainty" if uncertainty else None
         for folder in (self.depth_dir, self.sigma_dir):
@@ -43,11 +42,10 @@ class RunOutputs:
         """The frame's depth PNG (and 1-sigma PNG); nothing for a frame without depth."""
         if result.depth is None:
             return
-        level = self.png_compression
-        write_depth_png(self.depth_dir / f"{result.stem}.png", result.depth, compression=level)
+        write_depth_png(self.depth_dir / f"{result.stem}.png", result.depth, fast=True)
         if self.sigma_dir is not None:
             write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit),
-                            compression=level)
+                            fast=True)
 
     def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None,
                trajectory: CameraTrajectory | None = None) -> None:

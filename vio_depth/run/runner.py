@@ -131,7 +131,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``."""
     out_dir = folder.staging
-    outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty, png_compression=settings.png_compression)
+    outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
     exporter = RunExporter(out_dir, export) if export.any else None
     t_start = time.perf_counter()
