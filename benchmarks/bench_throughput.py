@@ -257,7 +257,7 @@ def print_result(res: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=list(DATASETS))
+    ap.add_argument("--datasets", nargs="*", default=list(DATASETS), choices=list(DATASETS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cache", type=Path, default=data.DEFAULT_CACHE, help=f"default {data.DEFAULT_CACHE}")
     ap.add_argument("--no-rss", action="store_true", help="skip the 100- vs 1000-frame peak memory runs")
@@ -268,7 +268,7 @@ def main(argv=None) -> int:
     print(f"bench_throughput: {os.cpu_count()} CPUs, OpenCV {cv2.__version__} with {cv2.getNumThreads()} threads, "
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, numpy {np.__version__}")
     paper = None if args.no_paper else paper_reference_module()
-    ok = True
+    ok, checked = True, False
     for name in args.datasets:
         view = prepare(name, args.cache)
         if view is None:
@@ -277,6 +277,7 @@ def main(argv=None) -> int:
         res = measure(name, view, args.repeats, paper)
         print_result(res)
         if name == "street_kitti":
+            checked = True
             ok &= res["fps"]["run"] >= 0.8 * res["fps"]["sift_best"]
             ok &= paper is None or res["fps"]["run"] >= 2.0 * res["fps"]["paper"]
     if args.png:
@@ -301,7 +302,9 @@ def main(argv=None) -> int:
         ratio = rss[long] / rss[short]
         print(f"peak RSS {long} frames / {short} frames: {ratio:.3f}")
         ok &= ratio <= 1.10
-    print("\nall done-when criteria pass" if ok else "\na done-when criterion FAILS")
+        checked = True
+    if checked:
+        print("\nall done-when criteria measured here pass" if ok else "\na done-when criterion FAILS")
     return 0 if ok else 1
 
 

@@ -13,7 +13,13 @@ A run has three lanes (docs/benchmarks.md, "Throughput"):
 
 Workers are **threads**: OpenCV, numpy and torch release the GIL in their heavy calls
 (decoding, SIFT, BLAS, PNG encoding, inference), and a thread shares the sequence, the
-matcher and the disparity model without copying them. TODO-MEASURE threads vs processes.
+matcher and the disparity model without copying them. A prefetch *process* was measured
+slower on 2 cores (it starts a second interpreter and pickles each frame's image,
+disparity and features back), and SIFT extraction of frame t+1 overlapping the matching
+and fit of frame t is what makes the overlap pay (docs/benchmarks.md, "Throughput").
+While a run overlaps, OpenCV's own thread pool is reduced to the cores the other lanes
+leave over (:func:`overlap_opencv_threads`: 1 on 2 cores), since on 2 shared cores its
+second thread slowed SIFT down.
 
 Guarantees:
 
