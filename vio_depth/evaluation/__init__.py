@@ -8,11 +8,28 @@ module                 job
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
+``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
+from .perturb import (
+    STUDIES,
+    ImuNoiseBoost,
+    OutlierDraw,
+    PerturbedSequence,
+    PoseNoise,
+    SparsePoints,
+    Study,
+    add_outliers,
+    depth_noise,
+    lidar_points,
+    perturb_imu,
+    perturb_pose,
+    shift_pixels,
+)
 from .point_accuracy import PointAccuracy, point_depth_errors
 from .reference_points import (
     POINT_SPEC_FORMS,
@@ -22,22 +39,44 @@ from .reference_points import (
     parse_points_spec,
     random_samples,
 )
+from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
 
 __all__ = [
-    "POINT_SPEC_FORMS",
     "DepthMetrics",
+    "EXECUTORS",
+    "ExecutorSettings",
     "FrameEvaluation",
+    "ImuNoiseBoost",
+    "OutlierDraw",
+    "POINT_SPEC_FORMS",
+    "PerturbedSequence",
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
+    "PoseNoise",
+    "STUDIES",
+    "SparsePoints",
+    "Study",
+    "Task",
+    "TaskCache",
+    "TaskError",
+    "add_outliers",
     "aggregate_point_accuracy",
     "average_metrics",
     "compute_metrics",
+    "depth_noise",
     "depth_reprojection_errors",
     "evaluate_frame",
+    "execute_task",
     "lidar_beams",
+    "lidar_points",
     "oracle_fit",
+    "package_version",
     "parse_points_spec",
+    "perturb_imu",
+    "perturb_pose",
     "point_depth_errors",
     "random_samples",
+    "run_tasks",
+    "shift_pixels",
 ]
