@@ -10,6 +10,8 @@ module              job
 ``rasterize``       depth images from points, depth re-projection between cameras
 ``native``          the native format (reader); ``native_writer`` writes it
 ``kitti``           KITTI raw drives; ``kitti_oxts`` their calibration and OXTS pose recipe
+``kitti_split``     KITTI split files (the Eigen test split) mapped to drives and frame indices
+``ddad``            DDAD scenes in the published DGP layout
 ``sevenscenes``     Microsoft 7-Scenes
 ``tum``             TUM RGB-D
 ==================  ============================================================================
@@ -17,7 +19,7 @@ module              job
 Importing this package registers every built-in format.
 """
 
-from . import kitti, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
+from . import ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
 from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format
 from .native import NativeSequence
 from .native_writer import NativeSequenceWriter, write_native_sequence
