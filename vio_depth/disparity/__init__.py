@@ -9,10 +9,12 @@ module             job
 ``simulation``     the SIMULATED disparity model (:func:`simulate_disparity`)
 ``densify``        densifying sparse real ground truth before simulating
 ``registry``       :class:`DisparitySettings` and :func:`create_disparity_source`
+``cache``          :class:`CachedDisparitySource`: each frame's map computed once, kept on disk
 =================  ==========================================================================
 """
 
 from .base import DisparityKind, DisparitySource, DisparitySpec, check_disparity
+from .cache import CachedDisparitySource, cache_key
 from .densify import GtDisparitySettings, densify_depth, simulate_gt_disparity
 from .model import ModelDisparity
 from .registry import DISPARITY_CHOICES, DisparitySettings, create_disparity_source, source_for_spec
@@ -27,6 +29,7 @@ from .sources import FileDisparity, SimulatedDisparitySource
 
 __all__ = [
     "DISPARITY_CHOICES",
+    "CachedDisparitySource",
     "DisparityKind",
     "DisparitySettings",
     "DisparitySimulation",
@@ -37,6 +40,7 @@ __all__ = [
     "ModelDisparity",
     "SimulatedDisparity",
     "SimulatedDisparitySource",
+    "cache_key",
     "check_disparity",
     "create_disparity_source",
     "densify_depth",

@@ -6,6 +6,7 @@ module                 job
 =====================  ======================================================================
 ``metrics``            :func:`compute_metrics` (delta1, AbsRel, RMSE), :func:`oracle_fit`
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
+``masks``              :class:`EvalMask`: depth caps and the KITTI Garg / Eigen crops
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
@@ -14,6 +15,7 @@ module                 job
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
+from .masks import CROPS, EvalMask, crop_bounds
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
 from .perturb import (
     STUDIES,
@@ -42,6 +44,9 @@ from .reference_points import (
 from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
 
 __all__ = [
+    "CROPS",
+    "EvalMask",
+    "crop_bounds",
     "DepthMetrics",
     "EXECUTORS",
     "ExecutorSettings",
