@@ -169,6 +169,7 @@ class PaperReferenceResult:
         points: points fed to RANSAC (after ``z > min_depth`` and finite disparity).
         inliers: RANSAC inliers.
         alpha, beta: fitted ``1/D = alpha d + beta`` (1/m), or None.
+        r2: coefficient of determination of ``1/z`` on ``d`` over the RANSAC inliers, or None.
         seconds: wall time of the frame (images, disparity, SIFT, matching,
             triangulation, fit, depth map); ``seconds_disparity`` of it in the disparity source.
         depth: (H, W) float32 metres, or None when the frame is dropped.
@@ -186,6 +187,7 @@ class PaperReferenceResult:
     inliers: int = 0
     alpha: float | None = None
     beta: float | None = None
+    r2: float | None = None
     seconds: float = 0.0
     seconds_disparity: float = 0.0
     depth: np.ndarray | None = field(default=None, repr=False)
@@ -201,7 +203,7 @@ class PaperReferenceResult:
         return {
             "frame": self.frame, "stem": self.stem, "status": self.status.value, "reason": self.reason,
             "partner": self.partner, "matches": self.matches, "points": self.points, "inliers": self.inliers,
-            "alpha": self.alpha, "beta": self.beta, "seconds": round(self.seconds, 4),
+            "alpha": self.alpha, "beta": self.beta, "r2": self.r2, "seconds": round(self.seconds, 4),
             "seconds_disparity": round(self.seconds_disparity, 4),
         }
 
@@ -451,8 +453,11 @@ def process_frame(sequence, index: int, disparity_source, settings: PaperReferen
     except ValueError as exc:
         return done(PaperReferenceStatus.FIT_FAILED, f"RANSACRegressor: {exc}", **base)
     depth = published_depth(disparity, fit.alpha, fit.beta)
+    m_in, d_in = 1.0 / z[keep][fit.inliers], d[keep][fit.inliers]
+    ss_tot = float(np.sum((m_in - m_in.mean()) ** 2))
+    r2 = 1.0 - float(np.sum((m_in - fit.alpha * d_in - fit.beta) ** 2)) / ss_tot if ss_tot > 0 else None
     return done(PaperReferenceStatus.OK, f"{int(fit.inliers.sum())} of {int(keep.sum())} points are RANSAC inliers",
-                inliers=int(fit.inliers.sum()), alpha=fit.alpha, beta=fit.beta, depth=depth, **base)
+                inliers=int(fit.inliers.sum()), alpha=fit.alpha, beta=fit.beta, r2=r2, depth=depth, **base)
 
 
 def iter_paper_reference(sequence, disparity_source=None, settings: PaperReferenceSettings | None = None,

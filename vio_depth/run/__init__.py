@@ -14,7 +14,7 @@ module             job
 from .config import RunSettings, config_from_dict, config_to_dict, dump_config, load_config
 from .outputs import RunOutputs
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
-from .runner import run_header, run_sequence
+from .runner import backfill_leading_frames, run_header, run_sequence
 from .summary import RunSummary, format_table
 
 __all__ = [
@@ -24,6 +24,7 @@ __all__ = [
     "RunOutputs",
     "RunSettings",
     "RunSummary",
+    "backfill_leading_frames",
     "config_from_dict",
     "config_to_dict",
     "dump_config",
