@@ -104,10 +104,11 @@ def parse_variant(text: str) -> Variant:
     if kind in (VariantKind.SFM, VariantKind.SFM_NO_RANSAC):
         matcher, poses = MATCHER_PRESETS.default, POSE_PRESETS.default
         seen = set()
+        matchers, poses_names = set(MATCHER_PRESETS), set(POSE_PRESETS)  # (a Presets raises on unknown keys)
         for token in filter(None, rest.split(":")):
-            if token in MATCHER_PRESETS and "matcher" not in seen:
+            if token in matchers and "matcher" not in seen:
                 matcher, _ = token, seen.add("matcher")
-            elif token in POSE_PRESETS and "poses" not in seen:
+            elif token in poses_names and "poses" not in seen:
                 poses, _ = token, seen.add("poses")
             else:
                 raise SettingsError(f"variant {text!r}: {token!r} is not a (first) matcher "
