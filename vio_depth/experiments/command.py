@@ -136,6 +136,20 @@ def build_tasks(resolved: list[ResolvedEntry], request: EvalRequest,
     return tasks
 
 
+def interleave(tasks: list[Task], groups: list[str]) -> list[Task]:
+    """``tasks`` reordered round-robin over their ``groups`` (sequences), keeping each group's order:
+    workers that start together then work on different sequences (and disparity maps)."""
+    queues: dict[str, list[Task]] = {}
+    for t, g in zip(tasks, groups, strict=True):
+        queues.setdefault(g, []).append(t)
+    out = []
+    while any(queues.values()):
+        for q in queues.values():
+            if q:
+                out.append(q.pop(0))
+    return out
+
+
 def _meta(request: EvalRequest, resolved: list[ResolvedEntry], kinds: dict, wall: float, n_tasks: int,
           n_cached: int, started: str) -> dict:
     ex = request.executor
@@ -182,10 +196,13 @@ def run_evaluation(request: EvalRequest) -> EvalOutcome:
     version = package_version()
     task_cache = TaskCache(cache / "tasks", run_eval_task, version)
     n_cached = sum(task_cache.load(t) is not None for t in dict.fromkeys(tasks))
+    order = interleave(tasks, [r.entry.label for _, r in pairs])
     t0 = time.perf_counter()
-    results = run_tasks(tasks, run_eval_task, cache_dir=cache / "tasks", executor=request.executor,
-                        progress=request.progress, version=version)
+    done = run_tasks(order, run_eval_task, cache_dir=cache / "tasks", executor=request.executor,
+                     progress=request.progress, version=version)
     wall = time.perf_counter() - t0
+    by_task = dict(zip(order, done, strict=True))
+    results = [by_task[t] for t in tasks]
     rows, frames, studies, kinds = [], [], {}, {}
     for (task, r), res in zip(pairs, results, strict=True):
         label = r.entry.label

@@ -1,5 +1,8 @@
 """CachedDisparitySource: each map computed once, read back bit-identical, None remembered."""
 
+import os
+import threading
+
 import numpy as np
 import pytest
 
@@ -56,3 +59,28 @@ def test_keys_are_stable_and_must_be_file_names(tmp_path):
     assert cache_key({"a": 1, "b": [2]}, "x") == cache_key({"b": [2], "a": 1}, "x") != cache_key({"a": 2}, "x")
     with pytest.raises(InputError):
         CachedDisparitySource(CountingSource(), tmp_path, "../up")
+
+
+def test_a_worker_waits_for_the_map_another_worker_is_computing(tmp_path):
+    cached = CachedDisparitySource(CountingSource(), tmp_path, "k", poll=0.01)
+    lock = cached.path_for(_frame(1)).with_suffix(".lock")
+    lock.touch()  # another worker is computing frame 1
+
+    def other_worker_finishes():
+        np.save(cached.path_for(_frame(1)), np.full((4, 6), 7.0, np.float32))
+        lock.unlink()
+
+    timer = threading.Timer(0.2, other_worker_finishes)
+    timer.start()
+    d = cached(_frame(1))
+    timer.join()
+    assert np.all(d == 7.0) and cached.source.calls == 0 and cached.hits == 1  # read, not recomputed
+
+
+def test_a_stale_lock_is_ignored(tmp_path):
+    cached = CachedDisparitySource(CountingSource(), tmp_path, "k", stale_after=60.0, poll=0.01)
+    lock = cached.path_for(_frame(0)).with_suffix(".lock")
+    lock.touch()
+    os.utime(lock, (0, 0))  # written in 1970: its worker is gone
+    assert cached(_frame(0)).shape == (4, 6) and cached.source.calls == 1
+    assert lock.exists()  # someone else's lock is left alone

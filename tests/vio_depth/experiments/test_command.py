@@ -4,8 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from vio_depth.evaluation import ExecutorSettings
+from vio_depth.evaluation import ExecutorSettings, Task
 from vio_depth.experiments import EvalRequest, compare_evaluations, parse_sequence_arg, parse_variants, run_evaluation
+from vio_depth.experiments.command import interleave
 from vio_depth.experiments.results import read_csv
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -64,3 +65,10 @@ def test_local_ray_instance_with_two_workers_gives_identical_numbers(sequential,
     ray_run = run_evaluation(_request(tmp_path / "ray", ExecutorSettings("ray", workers=2)))
     cmp = compare_evaluations(sequential.out, ray_run.out)
     assert cmp.identical, cmp.differences[:5]
+
+
+def test_tasks_are_handed_out_round_robin_over_sequences():
+    tasks = [Task(str(STREET), v) for v in ("a", "b", "c")] + [Task(str(ROOM), v) for v in ("a", "b")]
+    order = interleave(tasks, ["s", "s", "s", "r", "r"])
+    assert [(Path(t.sequence).name, t.variant) for t in order] == [
+        ("street", "a"), ("room", "a"), ("street", "b"), ("room", "b"), ("street", "c")]
