@@ -36,8 +36,8 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument("--variants", default="paper", help="comma-separated variants or groups (default: paper)")
     e.add_argument("--studies", default="none", help="robustness studies: all, none (default) or a list")
     e.add_argument("--study-frames", type=int, default=20, metavar="N",
-                   help="studies score N evaluated frames of each sequence, the first ones 8 or more "
-                        "frames after its start (default 20)")
+                   help="studies score a block of N evaluated frames in the middle of each sequence "
+                        "(default 20)")
     d = e.add_argument_group("defaults of every sequence (its @options override them)")
     d.add_argument("--profile", default="outdoor", choices=list(PROFILES))
     d.add_argument("--disparity", default="sequence", choices=list(DISPARITY_OPTIONS),

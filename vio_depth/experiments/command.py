@@ -29,8 +29,8 @@ from .studies import run_study_task
 from .variants import Variant
 
 STUDY_PREFIX = "study:"
-#: evaluated frames skipped at the start of a study (they have the fewest partners), when enough remain
-STUDY_WARMUP = 8
+#: frames a study processes before its first scored frame (partners, the filter's history)
+STUDY_LEAD = 16
 
 
 def run_eval_task(task: Task) -> dict:
@@ -64,7 +64,8 @@ class EvalRequest:
         out: the evaluation folder.
         studies: robustness study names (:func:`parse_studies`).
         study_frames: studies score this many evaluated frames of each sequence
-            (:func:`study_frames`; processed from the sequence's first frame).
+            (:func:`study_frames`: a block in the middle, processed from :data:`STUDY_LEAD`
+            frames before it).
         executor: where the tasks run.
         seed: seed of every random choice (RANSAC, SIMULATED disparity, perturbations).
         markdown: also write this Markdown document (figures beside it), or None.
@@ -110,16 +111,17 @@ def _unique_labels(resolved: list[ResolvedEntry]) -> list[ResolvedEntry]:
     return out
 
 
-def study_frames(evaluate, start: int, n: int, warmup: int = STUDY_WARMUP) -> list[int]:
-    """The ``n`` evaluated frames a study scores: the first ones at least ``warmup`` frames after
-    ``start`` (earlier frames have few partners), or the last ``n`` when too few lie beyond."""
-    later = [i for i in evaluate if i >= start + warmup]
-    return list(later[:n]) if len(later) >= n else list(evaluate[-n:])
+def study_frames(evaluate, n: int) -> list[int]:
+    """The ``n`` evaluated frames a study scores: a block in the middle of ``evaluate`` (the first
+    frames of a sequence have the fewest partners)."""
+    ev = list(evaluate)
+    first = max(0, (len(ev) - n) // 2)
+    return ev[first:first + n]
 
 
 def _study_settings(r: ResolvedEntry, base: dict, n: int) -> dict:
-    ev = study_frames(r.evaluate, r.start, n)
-    return {**base, "evaluate": ev, "stop": ev[-1] + 1}
+    ev = study_frames(r.evaluate, n)
+    return {**base, "evaluate": ev, "start": max(r.start, ev[0] - STUDY_LEAD), "stop": ev[-1] + 1}
 
 
 def build_tasks(resolved: list[ResolvedEntry], request: EvalRequest,

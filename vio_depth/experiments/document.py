@@ -80,8 +80,8 @@ def _same_frames_section(frames: list[dict], labels: list[str]) -> Section | Non
 
 def _study_section(folder: Path, fig_dir: Path, rel: str, names: list[str]) -> Section | None:
     sec = Section("Robustness studies", "studies", [Text(
-        "Each study sweeps one perturbation over a block of evaluated frames of each sequence (the first ones "
-        "at least 8 frames after its start; eval.json: study_frames), seeded per frame, the same draw at every value; cells are frame-averaged AbsRel, with the coverage in brackets when "
+        "Each study sweeps one perturbation over a block of evaluated frames in the middle of each sequence "
+        "(eval.json: study_frames; processed from 16 frames before the block), seeded per frame, the same draw at every value; cells are frame-averaged AbsRel, with the coverage in brackets when "
         "some frames got no depth. `ours` = our robust fit (MSAC + IRLS), `paper-reference` = scikit-learn "
         "RANSACRegressor at its defaults with the published depth formula, `least-squares` = plain least "
         "squares; all three on the same points.")])

@@ -69,10 +69,10 @@ def test_a_sequence_without_disparity_needs_the_simulated_option(tmp_path):
     assert r.format == "kitti_raw" and r.mask.crop == "garg" and r.mask.max_depth == 80.0
 
 
-def test_study_frames_skip_the_first_frames_when_they_can():
-    assert study_frames(tuple(range(100)), 0, 5) == [8, 9, 10, 11, 12]
-    assert study_frames(tuple(range(10)), 0, 5) == [5, 6, 7, 8, 9]  # too few beyond the warm-up: the last 5
-    assert study_frames((3, 20, 40), 0, 2) == [20, 40]
+def test_study_frames_are_a_block_in_the_middle():
+    assert study_frames(tuple(range(100)), 4) == [48, 49, 50, 51]
+    assert study_frames(tuple(range(0, 20, 2)), 3) == [6, 8, 10]
+    assert study_frames((3, 20, 40), 5) == [3, 20, 40]
 
 
 def test_split_entries_evaluate_exactly_the_listed_frames(tmp_path):
