@@ -35,8 +35,8 @@ def _figure(width_in: float, height_in: float, cols: int = 1):
 
 
 def figure_variants(rows: list[dict], sequences: list[str], variants: list[str]) -> bytes:
-    """Grouped bars: frame-averaged AbsRel of each variant (bars) on each sequence (groups),
-    with the coverage written above each bar. ``rows``: ``results.csv`` rows (dicts)."""
+    """Grouped bars: frame-averaged AbsRel of each variant (bars) on each sequence (groups), log
+    scale; the tables give each bar's coverage. ``rows``: ``results.csv`` rows (dicts)."""
     fig, (ax,) = _figure(7.5, 3.0)
     width = 0.8 / max(len(variants), 1)
     by = {(r["sequence"], r["variant"]): r for r in rows}
