@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vio_core.errors import InputError
+
 from .._version import __version__
 from ..disparity import CachedDisparitySource, DisparitySettings, DisparitySource, cache_key, create_disparity_source
 from ..evaluation import EvalMask
@@ -27,7 +29,7 @@ class FrameRange(Sequence):
 
     def __init__(self, base: Sequence, start: int, stop: int):
         if not 0 <= start < stop <= len(base):
-            raise ValueError(f"FrameRange: need 0 <= {start} < {stop} <= {len(base)}")
+            raise InputError(f"FrameRange: need 0 <= {start} < {stop} <= {len(base)}")
         self.base, self.start, self.stop = base, int(start), int(stop)
         super().__init__(base.root, base.name, base.camera, base.imu, base.disparity)
         self.format_name = base.format_name

@@ -78,11 +78,12 @@ def _same_frames_section(frames: list[dict], labels: list[str]) -> Section | Non
         Table(["sequence", "variant", "frames", "δ1", "AbsRel", "RMSE (m)"], table)])
 
 
-def _study_section(folder: Path, fig_dir: Path, rel: str, names: list[str]) -> Section | None:
+def _study_section(folder: Path, fig_dir: Path, rel: str, names: list[str], n_frames: int) -> Section | None:
     sec = Section("Robustness studies", "studies", [Text(
-        "Each study sweeps one perturbation over a block of evaluated frames in the middle of each sequence "
-        "(eval.json: study_frames; processed from 16 frames before the block), seeded per frame, the same draw at every value; cells are frame-averaged AbsRel, with the coverage in brackets when "
-        "some frames got no depth. `ours` = our robust fit (MSAC + IRLS), `paper-reference` = scikit-learn "
+        f"Each study sweeps one perturbation over a block of {n_frames} evaluated frames in the middle of each "
+        "sequence (processed from 16 frames before the block), seeded per frame, the same draw at every "
+        "value; cells are frame-averaged AbsRel, with the coverage in brackets when some frames got no depth. "
+        "`ours` = our robust fit (MSAC + IRLS), `paper-reference` = scikit-learn "
         "RANSACRegressor at its defaults with the published depth formula, `least-squares` = plain least "
         "squares; all three on the same points.")])
     found = False
@@ -171,7 +172,9 @@ def write_document(folder, doc_path, *, compare_with=None) -> Path:
              "pipeline (SIFT, ground-truth poses, streaming rescaler, offline backfill, as `vio-depth run`); "
              "`sfm-no-ransac` = the same points with plain least squares per frame; `fixed` = one (alpha, beta) per "
              "sequence, least squares over every evaluated frame; `paper-reference` = the published code's choices "
-             "(vio_depth/baselines/paper_reference.py).")])
+             "(vio_depth/baselines/paper_reference.py). The SIMULATED disparity draws a new scale and shift for "
+             "every frame (as Depth Anything normalises each image on its own), which is what `fixed` cannot "
+             "follow.")])
     sections = [top, run, protocol, _results_section(rows, labels)]
     same = _same_frames_section(frames, labels)
     if same is not None:
@@ -180,7 +183,7 @@ def write_document(folder, doc_path, *, compare_with=None) -> Path:
     variants = list(dict.fromkeys(r["variant"] for r in rows))
     write_bytes_atomic(png, figure_variants(rows, labels, variants))
     sections.append(Section("AbsRel per variant", "figure", [Image(f"{rel}/{png.name}", "AbsRel per variant")]))
-    studies = _study_section(folder, fig_dir, rel, meta.get("studies", []))
+    studies = _study_section(folder, fig_dir, rel, meta.get("studies", []), meta.get("study_frames", 0))
     if studies is not None:
         sections.append(studies)
     text = to_markdown("Evaluation: the paper's protocol on the bundled and shared sequences", sections)

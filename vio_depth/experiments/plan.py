@@ -79,7 +79,8 @@ class FrameSelection:
 
     def __post_init__(self):
         if self.start < 0 or (self.stop is not None and self.stop <= self.start) or self.step < 1:
-            raise SettingsError(f"frames: need 0 <= start < stop and step >= 1, got {self.start}:{self.stop}:{self.step}")
+            raise SettingsError(f"frames: need 0 <= start < stop and step >= 1, "
+                                f"got {self.start}:{self.stop}:{self.step}")
 
     @classmethod
     def parse(cls, text: str) -> "FrameSelection":
