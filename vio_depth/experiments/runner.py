@@ -26,6 +26,7 @@ from ..baselines import iter_paper_reference, paper_reference_preset
 from ..evaluation import Task, compute_metrics, oracle_fit, point_depth_errors
 from ..frame import Frame
 from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings
+from ..poses import create_pose_source
 from ..rescale import metric_depth, sample_bilinear
 from ..run import backfill_leading_frames
 from .context import TaskContext, open_task
@@ -165,7 +166,9 @@ def run_stream(ctx: TaskContext, source, settings: PipelineSettings, on_frame, f
     """
     frames = ctx.frames if frames is None else frames
     before = source.seconds
-    pipeline = Pipeline(settings, disparity_source=source, sequence=frames)
+    # the pose source looks up neighbouring frames by their index in the whole sequence (IMU)
+    poses = create_pose_source(settings.poses, frames.base)
+    pipeline = Pipeline(settings, pose_source=poses, disparity_source=source, sequence=frames)
     wanted = set(ctx.evaluate)
     values: dict[int, object] = {}
     outcomes: dict[int, _Outcome] = {}

@@ -88,6 +88,14 @@ def test_task_runner_uses_the_cached_simulated_disparity(tmp_path):
     assert no_cache["frames"] == first["frames"]  # cached maps are bit-identical to computed ones
 
 
+def test_imu_poses_work_on_a_range_that_does_not_start_at_frame_0():
+    room = ROOT / "sample_sequences" / "room"
+    settings = resolve_entry(parse_sequence_arg(f"{room}@indoor,frames=20:26")).task_settings(None)
+    out = evaluate_variant(open_task(str(room), settings), parse_variant("sfm:imu"))
+    assert [f["frame"] for f in out["frames"]] == list(range(20, 26))
+    assert out["row"]["coverage"] > 0.5 and out["row"]["abs_rel"] < 0.1
+
+
 def replace_settings(settings, **changes):
     return {**settings, **changes}
 
