@@ -37,7 +37,7 @@ def _figure(width_in: float, height_in: float, cols: int = 1):
 def figure_variants(rows: list[dict], sequences: list[str], variants: list[str]) -> bytes:
     """Grouped bars: frame-averaged AbsRel of each variant (bars) on each sequence (groups), log
     scale; the tables give each bar's coverage. ``rows``: ``results.csv`` rows (dicts)."""
-    fig, (ax,) = _figure(7.5, 3.0)
+    fig, (ax,) = _figure(7.5, 3.4)
     width = 0.8 / max(len(variants), 1)
     by = {(r["sequence"], r["variant"]): r for r in rows}
     for j, v in enumerate(variants):
@@ -55,16 +55,17 @@ def figure_variants(rows: list[dict], sequences: list[str], variants: list[str])
     ax.set_xticklabels(sequences, fontsize=7)
     ax.set_ylabel("AbsRel (lower is better)", fontsize=8)
     ax.set_yscale("log")
-    ax.legend(fontsize=6, ncol=min(len(variants), 5), loc="upper left", framealpha=0.7)
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=6, ncol=min(len(variants), 5), loc="lower center",
+               frameon=False)
     fig.suptitle("AbsRel per variant and sequence (frames with depth; see coverage in the tables)", fontsize=8)
-    fig.subplots_adjust(left=0.08, right=0.99, top=0.9, bottom=0.12)
+    fig.subplots_adjust(left=0.08, right=0.99, top=0.91, bottom=0.1 + 0.045 * -(-len(variants) // 5))
     return png_bytes(fig)
 
 
 def figure_study(name: str, parameter: str, unit: str, rows: list[dict]) -> bytes:
     """AbsRel and delta1 against the swept value; colour = sequence, line style = method.
     ``rows``: the study's CSV rows (dicts with sequence, method, value, abs_rel, delta1)."""
-    fig, (ax_a, ax_d) = _figure(7.5, 2.8, cols=2)
+    fig, (ax_a, ax_d) = _figure(7.5, 3.6, cols=2)
     sequences = list(dict.fromkeys(r["sequence"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     for i, s in enumerate(sequences):
@@ -87,7 +88,9 @@ def figure_study(name: str, parameter: str, unit: str, rows: list[dict]) -> byte
         elif len(values) > 2 and values[1] > 0 and values[-1] / values[1] >= 20:
             ax.set_xscale("symlog", linthresh=values[1])
     ax_a.set_yscale("log")
-    ax_a.legend(fontsize=5, loc="upper left", framealpha=0.7, ncol=2)
+    handles, labels = ax_a.get_legend_handles_labels()
+    ncol = 4
+    fig.legend(handles, labels, fontsize=6, loc="lower center", ncol=ncol, frameon=False)
     fig.suptitle(f"Robustness: {name} (solid: ours, dashed: paper-reference, dotted: least squares)", fontsize=8)
-    fig.subplots_adjust(left=0.08, right=0.99, top=0.88, bottom=0.17, wspace=0.25)
+    fig.subplots_adjust(left=0.08, right=0.99, top=0.9, bottom=0.14 + 0.04 * -(-len(labels) // ncol), wspace=0.25)
     return png_bytes(fig)
