@@ -1,4 +1,4 @@
-"""Pinhole camera with optional radial-tangential (OpenCV) distortion."""
+"""Pinhole camera with optional radial-tangential (OpenCV) or equidistant (fisheye) distortion."""
 
 from __future__ import annotations
 
@@ -10,15 +10,25 @@ import numpy as np
 from .checks import check_array
 from .errors import InputError
 
+#: distortion models of :class:`Camera` (``model`` field)
+DISTORTION_MODELS = ("radtan", "equidistant")
+
 
 @dataclass(frozen=True)
 class Camera:
     """Pinhole intrinsics in pixels for an image of ``width`` x ``height`` pixels.
 
-    ``dist`` holds OpenCV radial-tangential coefficients ``(k1, k2, p1, p2[, k3])`` of
-    the *raw* images, or is empty for an undistorted (or rectified) camera. Keypoints
-    are measured in raw pixel coordinates; :meth:`undistort_points` maps them to the
-    ideal pinhole image with the same ``K`` before any geometry is done on them.
+    ``model`` names the lens distortion of the *raw* images and ``dist`` its coefficients:
+
+    * ``"radtan"`` (default): OpenCV radial-tangential ``(k1, k2, p1, p2[, k3[, k4, k5, k6]])``
+      (Kalibr / EuRoC "radial-tangential"), or empty for an undistorted (or rectified) camera;
+    * ``"equidistant"``: the fisheye model of ``cv2.fisheye`` (Kalibr / TUM-VI
+      "equidistant"), ``(k1, k2, k3, k4)``: a ray at angle ``theta`` from the optical axis
+      lands at ideal radius ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 +
+      k4 theta^8)`` (normalised units), or empty (no distortion).
+
+    Keypoints are measured in raw pixel coordinates; :meth:`undistort_points` maps them to
+    the ideal pinhole image with the same ``K`` before any geometry is done on them.
     """
 
     width: int
@@ -28,14 +38,19 @@ class Camera:
     cx: float
     cy: float
     dist: tuple[float, ...] = field(default=())
+    model: str = "radtan"
 
     def __post_init__(self):
         if self.width <= 0 or self.height <= 0:
             raise InputError(f"camera: image size must be positive, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0):
             raise InputError(f"camera: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-        if len(self.dist) not in (0, 4, 5, 8):
-            raise InputError(f"camera: expected 0, 4, 5 or 8 distortion coefficients, got {len(self.dist)}")
+        if self.model not in DISTORTION_MODELS:
+            raise InputError(f"camera: unknown distortion model {self.model!r}; valid: {', '.join(DISTORTION_MODELS)}")
+        if self.model == "radtan" and len(self.dist) not in (0, 4, 5, 8):
+            raise InputError(f"camera: expected 0, 4, 5 or 8 radial-tangential coefficients, got {len(self.dist)}")
+        if self.model == "equidistant" and len(self.dist) not in (0, 4):
+            raise InputError(f"camera: expected 0 or 4 equidistant coefficients (k1 k2 k3 k4), got {len(self.dist)}")
         object.__setattr__(self, "dist", tuple(float(d) for d in self.dist))
 
     @property
@@ -48,10 +63,11 @@ class Camera:
         return any(d != 0.0 for d in self.dist)
 
     @classmethod
-    def from_K(cls, K, width: int, height: int, dist=()) -> "Camera":
+    def from_K(cls, K, width: int, height: int, dist=(), model: str = "radtan") -> "Camera":
         """Build from a (3, 3) intrinsic matrix (zero skew)."""
         K = check_array("K", K, (3, 3), finite=True)
-        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), tuple(dist))
+        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                   tuple(dist), model)
 
     def project(self, points_c) -> tuple[np.ndarray, np.ndarray]:
         """Project ``points_c: (N, 3)`` metres (camera frame, z forward) to ideal pixels.
@@ -82,13 +98,18 @@ class Camera:
         uv_raw = check_array("uv_raw", uv_raw, (None, 2))
         if not self.is_distorted or len(uv_raw) == 0:
             return uv_raw.astype(np.float64, copy=True)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        if self.model == "equidistant":
+            out = cv2.fisheye.undistortPoints(uv_raw.reshape(-1, 1, 2).astype(np.float64), self.K,
+                                              np.asarray(self.dist), R=np.eye(3), P=self.K, criteria=criteria)
+            return out.reshape(-1, 2)
         out = cv2.undistortPoints(
             uv_raw.reshape(-1, 1, 2).astype(np.float64),
             self.K,
             np.asarray(self.dist),
             R=None,
             P=self.K,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
+            criteria=criteria,
         )
         return out.reshape(-1, 2)
 
@@ -97,6 +118,10 @@ class Camera:
         uv = check_array("uv_ideal", uv_ideal, (None, 2))
         if not self.is_distorted or len(uv) == 0:
             return uv.astype(np.float64, copy=True)
+        if self.model == "equidistant":
+            xy = np.stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy], 1)
+            out = cv2.fisheye.distortPoints(xy.reshape(-1, 1, 2), self.K, np.asarray(self.dist))
+            return out.reshape(-1, 2)
         rays = np.stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy, np.ones(len(uv))], 1)
         out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, np.asarray(self.dist))
         return out.reshape(-1, 2)
@@ -117,5 +142,5 @@ class Camera:
         sy = sx if sy is None else sy
         return Camera(
             max(1, round(self.width * sx)), max(1, round(self.height * sy)),
-            self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.dist,
+            self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.dist, self.model,
         )

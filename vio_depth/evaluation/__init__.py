@@ -1,5 +1,6 @@
 """Evaluation against ground truth: dense depth metrics, the oracle fit, point accuracy,
-and reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``).
+reference point sources sampled from ground truth (``--points lidar:N`` / ``random:N``),
+camera trajectories (TUM files, ATE, RPE) and the IMU pose source's propagation error and NEES.
 
 =====================  ======================================================================
 module                 job
@@ -9,12 +10,15 @@ module                 job
 ``masks``              :class:`EvalMask`: depth caps and the KITTI Garg / Eigen crops
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
+``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
 ``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
+from .imu_propagation import PropagationErrors, evaluate_propagation, ground_truth_frames
 from .masks import CROPS, EvalMask, crop_bounds
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
 from .perturb import (
@@ -42,46 +46,73 @@ from .reference_points import (
     random_samples,
 )
 from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
+from .trajectory import (
+    AteResult,
+    CameraTrajectory,
+    ErrorStats,
+    RpeResult,
+    absolute_trajectory_error,
+    associate,
+    pairs_by_path,
+    read_trajectory_tum,
+    relative_pose_error,
+    umeyama_alignment,
+    write_trajectory_tum,
+)
 
 __all__ = [
     "CROPS",
-    "EvalMask",
-    "crop_bounds",
-    "DepthMetrics",
     "EXECUTORS",
+    "POINT_SPEC_FORMS",
+    "STUDIES",
+    "AteResult",
+    "CameraTrajectory",
+    "DepthMetrics",
+    "ErrorStats",
+    "EvalMask",
     "ExecutorSettings",
     "FrameEvaluation",
     "ImuNoiseBoost",
     "OutlierDraw",
-    "POINT_SPEC_FORMS",
     "PerturbedSequence",
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
     "PoseNoise",
-    "STUDIES",
+    "PropagationErrors",
+    "RpeResult",
     "SparsePoints",
     "Study",
     "Task",
     "TaskCache",
     "TaskError",
+    "absolute_trajectory_error",
     "add_outliers",
     "aggregate_point_accuracy",
+    "associate",
     "average_metrics",
     "compute_metrics",
+    "crop_bounds",
     "depth_noise",
     "depth_reprojection_errors",
     "evaluate_frame",
+    "evaluate_propagation",
     "execute_task",
+    "ground_truth_frames",
     "lidar_beams",
     "lidar_points",
     "oracle_fit",
     "package_version",
+    "pairs_by_path",
     "parse_points_spec",
     "perturb_imu",
     "perturb_pose",
     "point_depth_errors",
     "random_samples",
+    "read_trajectory_tum",
+    "relative_pose_error",
     "run_tasks",
     "shift_pixels",
+    "umeyama_alignment",
+    "write_trajectory_tum",
 ]

@@ -14,17 +14,22 @@ module              job
 ``ddad``            DDAD scenes in the published DGP layout
 ``sevenscenes``     Microsoft 7-Scenes
 ``tum``             TUM RGB-D
+``asl``             EuRoC / TUM-VI (ASL layout, ``mav0/``); ``asl_writer`` writes it
 ==================  ============================================================================
 
 Importing this package registers every built-in format.
 """
 
-from . import ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
+from . import asl, ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
+from .asl import AslSequence
+from .asl_writer import AslWriter
 from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format
 from .native import NativeSequence
 from .native_writer import NativeSequenceWriter, write_native_sequence
 
 __all__ = [
+    "AslSequence",
+    "AslWriter",
     "NativeSequence",
     "NativeSequenceWriter",
     "Sequence",

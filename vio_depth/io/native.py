@@ -45,7 +45,7 @@ POSE_TIME_TOLERANCE_S = 1e-3
 MIN_IMU_RATE_HZ = 100.0
 
 _TOP_KEYS = {"format", "version", "name", "camera", "frames", "poses", "imu", "depth", "disparity", "metadata"}
-_CAMERA_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "dist"}
+_CAMERA_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "dist", "model"}
 _IMU_KEYS = {"file", "T_c_i", "gyro_noise_density", "accel_noise_density", "gyro_bias_random_walk",
              "accel_bias_random_walk", "gravity_w", "rate_hz", "simulation"}
 _DEPTH_KEYS = {"folder", "scale"}
@@ -127,12 +127,18 @@ def _parse_camera(block, path: Path) -> Camera:
         vals[key] = v
     for key in ("fx", "fy", "cx", "cy"):
         vals[key] = _number(_require(block, key, path, "camera."), path, f"camera.{key}")
+    model = block.get("model", "radtan")
+    if model not in ("radtan", "equidistant"):
+        raise SequenceFormatError(path, f"camera.model must be 'radtan' or 'equidistant', got {model!r}")
     dist = block.get("dist", [])
-    if not isinstance(dist, list) or len(dist) not in (0, 4, 5):
+    if model == "radtan" and (not isinstance(dist, list) or len(dist) not in (0, 4, 5)):
         raise SequenceFormatError(path, f"camera.dist must be a list of 0, 4 (k1 k2 p1 p2) or 5 (+k3) numbers, got {dist!r}")
+    if model == "equidistant" and (not isinstance(dist, list) or len(dist) not in (0, 4)):
+        raise SequenceFormatError(path, f"camera.dist of an equidistant camera must be a list of 0 or 4 numbers "
+                                        f"(k1 k2 k3 k4), got {dist!r}")
     dist = tuple(_number(d, path, "camera.dist[]") for d in dist)
     try:
-        return Camera(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"], vals["cy"], dist)
+        return Camera(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"], vals["cy"], dist, model)
     except InputError as exc:
         raise SequenceFormatError(path, str(exc)) from None
 

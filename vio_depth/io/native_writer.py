@@ -167,6 +167,8 @@ class NativeSequenceWriter:
             "frames": "frames.txt",
             "poses": "poses.txt",
         }
+        if c.model != "radtan":  # absent = radtan: files of radial-tangential cameras stay unchanged
+            meta["camera"]["model"] = c.model
         if self._has_depth:
             meta["depth"] = {"folder": "depth", "scale": DEPTH_PNG_SCALE}
         if self._imu is not None:

@@ -5,7 +5,8 @@ calibration) through :func:`read_text_table`, so blank lines, ``#`` comments, no
 bytes, wrong column counts and non-numeric or non-finite values are handled once and
 always reported as :class:`~vio_core.errors.SequenceFormatError` naming the file and line.
 Format-specific readers built on it live here too when more than one loader uses them:
-the TUM trajectory format (:func:`read_tum_trajectory`, one quaternion tolerance) and
+the TUM trajectory format (:func:`read_tum_trajectory`, one quaternion tolerance;
+:func:`format_tum_trajectory`) and
 pose interpolation in time (:func:`interpolate_poses`).
 """
 
@@ -75,8 +76,9 @@ class TextTable:
 
 
 def read_text_table(path, what: str, *, layout: str | None = None, columns: int | None = None,
-                    min_columns: int | None = None, allow_empty: bool = False) -> TextTable:
-    """Read a whitespace-separated text table.
+                    min_columns: int | None = None, allow_empty: bool = False,
+                    delimiter: str | None = None) -> TextTable:
+    """Read a whitespace-separated (or ``delimiter``-separated) text table.
 
     Args:
         path: the file.
@@ -85,6 +87,8 @@ def read_text_table(path, what: str, *, layout: str | None = None, columns: int 
         columns: exact number of fields per line, or None.
         min_columns: least number of fields per line (extra fields are kept), or None.
         allow_empty: no error when no row remains.
+        delimiter: field separator (``","`` for EuRoC csv files; fields are stripped of
+            surrounding whitespace), or None for runs of whitespace.
 
     Returns:
         :class:`TextTable` of the lines that are neither blank nor start with ``#``.
@@ -109,7 +113,7 @@ def read_text_table(path, what: str, *, layout: str | None = None, columns: int 
         s = raw.strip()
         if not s or s.startswith("#"):
             continue
-        fields = s.split()
+        fields = s.split() if delimiter is None else [f.strip() for f in s.split(delimiter)]
         if columns is not None and len(fields) != columns:
             raise SequenceFormatError(path, f"expected {columns} columns ({layout}), got {len(fields)}", lineno)
         if min_columns is not None and len(fields) < min_columns:
@@ -161,15 +165,22 @@ def read_tum_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
     return rows[:, 0].copy(), T
 
 
-def write_tum_trajectory(path, t, T_w_c, header: str = "camera-to-world, metres") -> None:
-    """Write ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses in TUM format."""
+def format_tum_trajectory(t, T_w_c, header: str = "camera-to-world, metres", time_decimals: int = 6) -> str:
+    """TUM text of ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses: a ``#`` header line,
+    then ``t tx ty tz qx qy qz qw`` per pose (``time_decimals`` decimals of a second)."""
     t = check_array("t", t, (None,), finite=True)
     T_w_c = check_array("T_w_c", T_w_c, (len(t), 4, 4), finite=True)
+    lines = [f"# timestamp tx ty tz qx qy qz qw ({header})\n"]
+    for ti, T in zip(t, T_w_c):
+        lines.append(f"{ti:.{time_decimals}f} " + " ".join(f"{x:.9f}" for x in transform_to_tum(T)) + "\n")
+    return "".join(lines)
+
+
+def write_tum_trajectory(path, t, T_w_c, header: str = "camera-to-world, metres") -> None:
+    """Write ``t: (N,)`` seconds and ``T_w_c: (N, 4, 4)`` poses in TUM format."""
+    text = format_tum_trajectory(t, T_w_c, header)
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write(f"# timestamp tx ty tz qx qy qz qw ({header})\n")
-        for ti, T in zip(t, T_w_c):
-            v = transform_to_tum(T)
-            fh.write(f"{ti:.6f} " + " ".join(f"{x:.9f}" for x in v) + "\n")
+        fh.write(text)
 
 
 def associate_nearest(t_query, t_ref, max_difference: float) -> np.ndarray:
@@ -196,19 +207,22 @@ def associate_nearest(t_query, t_ref, max_difference: float) -> np.ndarray:
     return np.where(np.abs(r[best] - q) <= max_difference, best, -1).astype(np.int64)
 
 
-def interpolate_poses(t_query, t_ref, T_ref, max_difference: float) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_poses(t_query, t_ref, T_ref, max_difference: float, *,
+                      bracketed_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Poses at ``t_query`` interpolated between the reference samples around each time.
 
     Translation is interpolated linearly and rotation along the geodesic. A query needs
     a reference sample within ``max_difference``; when the query is not bracketed by
     two samples (or the bracketing gap exceeds ``2 * max_difference``) the nearest
-    sample's pose is used.
+    sample's pose is used -- unless ``bracketed_only``, when such a query gets no pose
+    (never extrapolated; a query at a sample's exact time still takes that sample).
 
     Args:
         t_query: (N,) seconds.
         t_ref: (M,) seconds, non-decreasing.
         T_ref: (M, 4, 4) poses at ``t_ref``.
         max_difference: seconds.
+        bracketed_only: no nearest-sample fallback (see above).
 
     Returns:
         ``(T (N, 4, 4), ok (N,) bool)``; rows with ``ok`` False are identity.
@@ -218,14 +232,15 @@ def interpolate_poses(t_query, t_ref, T_ref, max_difference: float) -> tuple[np.
     T = check_array("T_ref", T_ref, (len(r), 4, 4), finite=True)
     nearest = associate_nearest(q, r, max_difference)
     ok = nearest >= 0
+    if bracketed_only and len(r):
+        ok &= r[np.maximum(nearest, 0)] == q  # exact sample times; bracketed queries join below
     out = np.tile(np.eye(4), (len(q), 1, 1))
-    if not ok.any():
-        return out, ok
     out[ok] = T[nearest[ok]]
     if len(r) >= 2:
         j = np.clip(np.searchsorted(r, q, side="right") - 1, 0, len(r) - 2)
         gap = r[j + 1] - r[j]
-        brk = ok & (r[j] <= q) & (q <= r[j + 1]) & (gap > 0) & (gap <= 2 * max_difference)
+        brk = (nearest >= 0) & (r[j] <= q) & (q <= r[j + 1]) & (gap > 0) & (gap <= 2 * max_difference)
+        ok |= brk
         if brk.any():
             jb = j[brk]
             a = (q[brk] - r[jb]) / gap[brk]

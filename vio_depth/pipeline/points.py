@@ -98,7 +98,8 @@ class TwoViewPoints:
         for kf, rel, motion in candidates:
             m = self.matcher.match(features, kf.features)
             if len(m) < self.min_matches:
-                attempts.append(PairAttempt(kf.frame.index, motion, len(m), PairStatus.TOO_FEW_MATCHES))
+                attempts.append(PairAttempt(kf.frame.index, motion, len(m), PairStatus.TOO_FEW_MATCHES,
+                                            T_kf_cur=rel.T_kf_cur))
                 continue
             pts = triangulate_pair(
                 features.keypoints[m.idx_a], kf.features.keypoints[m.idx_b],
@@ -109,7 +110,7 @@ class TwoViewPoints:
             n_valid = int(valid.sum())
             attempts.append(PairAttempt(kf.frame.index, motion, len(m),
                                         PairStatus.OK if n_valid else PairStatus.NO_VALID_POINTS,
-                                        pts.status_counts(), n_valid))
+                                        pts.status_counts(), n_valid, rel.T_kf_cur))
             if n_valid:
                 merged.append((m.idx_a[valid], pts.subset(valid)))
 

@@ -24,6 +24,8 @@ class PairAttempt:
         point_status: number of candidate points per triangulation status (empty when
             the pair was not triangulated).
         valid: points that passed every check.
+        T_kf_cur: (4, 4) the relative pose used (current camera to keyframe camera, metres),
+            or None.
     """
 
     keyframe: int
@@ -32,6 +34,7 @@ class PairAttempt:
     status: PairStatus
     point_status: dict[str, int] = field(default_factory=dict)
     valid: int = 0
+    T_kf_cur: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def problem(self, min_matches: int) -> str:
         """Why this pair gave no point ("" when it did)."""
@@ -78,6 +81,13 @@ class PointsOutcome:
     @property
     def motion(self) -> Motion | None:
         return self.attempts[0].motion if self.attempts else None
+
+    @property
+    def relative_pose(self) -> tuple[int, np.ndarray] | None:
+        """``(keyframe index, T_kf_cur (4, 4))`` of the first pair tried, or None."""
+        if not self.attempts or self.attempts[0].T_kf_cur is None:
+            return None
+        return self.attempts[0].keyframe, self.attempts[0].T_kf_cur
 
     @property
     def point_status(self) -> dict[str, int]:

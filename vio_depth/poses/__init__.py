@@ -8,6 +8,7 @@ module             job
 ``imu_state``      :class:`ImuPoseSettings`, :class:`NavEstimate`
 ``preintegration`` gtsam IMU preintegration, the bias/velocity window fit
 ``imu``            ``imu``: :class:`ImuPoseSource`
+``static_init``    still interval, roll/pitch and gyroscope bias from the IMU alone
 ``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`
 =================  ===========================================================================
 """
@@ -18,6 +19,7 @@ from .imu import ImuPoseSource
 from .imu_state import ImuPoseSettings, NavEstimate
 from .preintegration import ImuIntegration, WindowFit, fit_window, integrate_interval, preintegration_params
 from .registry import POSE_PRESETS, PoseSettings, create_pose_source
+from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
 
 __all__ = [
     "POSE_PRESETS",
@@ -30,9 +32,13 @@ __all__ = [
     "PoseSettings",
     "PoseSource",
     "RelativePose",
+    "StaticInit",
+    "StaticInitSettings",
     "WindowFit",
     "create_pose_source",
+    "detect_still_interval",
     "fit_window",
     "integrate_interval",
     "preintegration_params",
+    "static_initialisation",
 ]

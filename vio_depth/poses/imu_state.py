@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vio_core.errors import SettingsError
+
 
 @dataclass(frozen=True)
 class ImuPoseSettings:
@@ -32,7 +34,31 @@ class ImuPoseSettings:
         accel_bias_prior_sigma: m/s^2, 1-sigma of the accelerometer bias around
             ``accel_bias`` (regularises short windows).
         gyro_bias_prior_sigma: rad/s, same for the gyroscope.
-        pose_sigma_m / pose_sigma_rad: 1-sigma noise of the sequence's poses in the fit.
+        pose_sigma_m / pose_sigma_rad: 1-sigma noise of the sequence's poses in the fit
+            (and, with ``pose_noise_in_velocity``, in the two-pose velocities).
+        accel_noise_scale / gyro_noise_scale: factors on the IMU's white-noise densities
+            (``ImuData.accel_noise`` / ``gyro_noise``) wherever the covariance is computed
+            (preintegration, bias fit); 1 = the sensor's datasheet / Kalibr values.
+        bias_covariance: add the bias estimate's uncertainty (from the window fit, else the
+            bias prior sigmas) to the pose covariance, through the preintegration's bias
+            Jacobian (``gtsam`` ``predict`` H2).
+        bias_scatter_window_s: seconds of past window fits whose scatter the fit's bias
+            covariance is grown to (per bias component; 0 = the least-squares covariance only).
+        pose_noise_in_velocity: add the sequence poses' noise (``2 velocity_pose_sigma_m^2
+            / dt^2``) to the covariance of a two-pose velocity.
+        velocity_pose_sigma_m: 1-sigma position jitter between consecutive sequence poses,
+            metres (a motion-capture / batch ground truth: ~0.1 mm; on EuRoC V1_01 the
+            two-pose velocities differ from a smoothed ground-truth velocity by 2.5-4 mm/s
+            per axis at 20 Hz, i.e. ~0.1 mm).
+
+    The defaults are the covariance calibrated on the real EuRoC V1_01 IMU stream
+    (docs/benchmarks.md, "IMU propagation and covariance"); :meth:`uncalibrated` gives the
+    covariance before that calibration (datasheet noise only, no bias or pose-noise terms).
+    The pose preset ``imu_real_mav`` (:data:`vio_depth.poses.POSE_PRESETS`) adds
+    ``accel_noise_scale = 10`` for a real MEMS IMU on a vibrating vehicle.
+
+    Raises:
+        SettingsError: a noise scale, sigma or window that is not positive (or negative).
     """
 
     max_interval_s: float = 5.0
@@ -50,6 +76,27 @@ class ImuPoseSettings:
     gyro_bias_prior_sigma: float = 0.01
     pose_sigma_m: float = 0.002
     pose_sigma_rad: float = 0.001
+    accel_noise_scale: float = 1.0
+    gyro_noise_scale: float = 1.0
+    bias_covariance: bool = True
+    bias_scatter_window_s: float = 10.0
+    pose_noise_in_velocity: bool = True
+    velocity_pose_sigma_m: float = 1.0e-4
+
+    def __post_init__(self):
+        for name in ("accel_noise_scale", "gyro_noise_scale", "pose_sigma_m", "pose_sigma_rad",
+                     "accel_bias_prior_sigma", "gyro_bias_prior_sigma", "velocity_pose_sigma_m"):
+            if not getattr(self, name) > 0:
+                raise SettingsError(f"ImuPoseSettings.{name} must be positive, got {getattr(self, name)}")
+        if not self.bias_scatter_window_s >= 0:
+            raise SettingsError(f"ImuPoseSettings.bias_scatter_window_s must be >= 0, got {self.bias_scatter_window_s}")
+
+    @classmethod
+    def uncalibrated(cls, **overrides) -> "ImuPoseSettings":
+        """The covariance before the calibration: datasheet noise, no bias or pose-noise terms."""
+        base = dict(accel_noise_scale=1.0, gyro_noise_scale=1.0, bias_covariance=False, pose_noise_in_velocity=False)
+        base.update(overrides)
+        return cls(**base)
 
 
 @dataclass(frozen=True)
@@ -66,6 +113,7 @@ class NavEstimate:
             "finite_difference" or "static".
         accel_bias: (3,) m/s^2 accelerometer bias used from this state on.
         gyro_bias: (3,) rad/s gyroscope bias used from this state on.
+        bias_cov: (6, 6) covariance of (accel_bias m/s^2, gyro_bias rad/s) (zero: exact).
     """
 
     t: float
@@ -76,3 +124,4 @@ class NavEstimate:
     velocity_source: str
     accel_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))

@@ -6,7 +6,7 @@ conventions (gtsam ``Pose3`` right perturbation, rotation first) are in its modu
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -66,12 +66,13 @@ def _gtsam():
 
 
 def preintegration_params(imu: ImuData, settings: ImuPoseSettings = ImuPoseSettings()):
-    """``gtsam.PreintegrationCombinedParams`` from the IMU's noise densities and gravity."""
+    """``gtsam.PreintegrationCombinedParams`` from the IMU's noise densities (times the
+    settings' noise scales) and gravity."""
     gtsam = _gtsam()
     p = gtsam.PreintegrationCombinedParams(np.asarray(imu.gravity_w, dtype=np.float64))
     eye = np.eye(3)
-    p.setAccelerometerCovariance(eye * imu.accel_noise**2)
-    p.setGyroscopeCovariance(eye * imu.gyro_noise**2)
+    p.setAccelerometerCovariance(eye * (settings.accel_noise_scale * imu.accel_noise)**2)
+    p.setGyroscopeCovariance(eye * (settings.gyro_noise_scale * imu.gyro_noise)**2)
     p.setIntegrationCovariance(eye * settings.integration_sigma**2)
     p.setBiasAccCovariance(eye * imu.accel_bias_walk**2)
     p.setBiasOmegaCovariance(eye * imu.gyro_bias_walk**2)
@@ -110,7 +111,9 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
     """Preintegrate the IMU from ``start.t`` to ``t1`` seconds and predict the state at ``t1``.
 
     Samples are treated as piecewise linear in time (see :func:`_pieces`); the biases
-    are the start state's.
+    are the start state's. The covariance holds the preintegration noise, the start
+    velocity's covariance times ``dt^2`` and, with ``settings.bias_covariance``, the start
+    state's ``bias_cov`` mapped through the prediction's bias Jacobian.
 
     Args:
         imu: the sequence's IMU samples.
@@ -118,7 +121,7 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
             biases).
         t1: end time, seconds (>= ``start.t``).
         params: ``gtsam.PreintegrationCombinedParams`` (built from ``imu`` when None).
-        settings: sample gaps.
+        settings: sample gaps, noise scales, the bias term.
 
     Returns:
         ``(ImuIntegration, "")`` or ``(None, reason)`` when the IMU does not cover the interval.
@@ -142,7 +145,8 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
             if dt > 0:
                 pim.integrateMeasurement(a, w, float(dt))
     state0 = gtsam.NavState(gtsam.Rot3(start.T_w_i[:3, :3]), start.T_w_i[:3, 3].copy(), start.velocity_w.copy())
-    state1 = pim.predict(state0, bias)
+    H_bias = np.zeros((9, 6), order="F")  # d(end state (rotation, position, velocity; end frame)) / d(accel, gyro bias)
+    state1 = pim.predict(state0, bias, np.zeros((9, 9), order="F"), H_bias)
     T_w_i1 = state1.pose().matrix()
     T_i0_i1 = invert_transform(start.T_w_i) @ T_w_i1
 
@@ -155,6 +159,11 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
     J[3:, 3:] = T_i0_i1[:3, :3].T  # translation error: earlier frame -> later (Pose3 right perturbation)
     cov = J @ C_rt @ J.T
     vel_cov = start.velocity_cov + R_w_i0 @ C[6:9, 6:9] @ R_w_i0.T
+    if settings.bias_covariance and np.any(start.bias_cov):
+        B = H_bias @ np.asarray(start.bias_cov, float) @ H_bias.T  # end-frame tangent, like Pose3's right perturbation
+        cov = cov + B[:6, :6]
+        R_w_i1 = T_w_i1[:3, :3]
+        vel_cov = vel_cov + R_w_i1 @ B[6:9, 6:9] @ R_w_i1.T
     moved = t1 > t0
     end = replace(start, t=float(t1), T_w_i=T_w_i1, velocity_w=np.asarray(state1.velocity(), float).reshape(3),
                   velocity_cov=vel_cov, pose_source="estimate" if moved else start.pose_source,
@@ -204,12 +213,14 @@ class WindowFit:
         accel_bias: (3,) m/s^2. gyro_bias: (3,) rad/s.
         velocity_w: (3,) m/s IMU velocity at the last frame of the window.
         velocity_cov: (3, 3) (m/s)^2 its covariance (from the fit's assumed noise).
+        bias_cov: (6, 6) covariance of (accel_bias, gyro_bias) from the same least squares.
     """
 
     accel_bias: np.ndarray
     gyro_bias: np.ndarray
     velocity_w: np.ndarray
     velocity_cov: np.ndarray
+    bias_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
 
 
 def fit_window(imu: ImuData, params, times, T_w_i, settings: ImuPoseSettings = ImuPoseSettings()) -> WindowFit | None:
@@ -260,14 +271,17 @@ def fit_window(imu: ImuData, params, times, T_w_i, settings: ImuPoseSettings = I
     g = np.asarray(imu.gravity_w, float)
     # gyroscope bias from the rotations
     r = Rotation.from_matrix(np.transpose(dR, (0, 2, 1)) @ R0.T @ T[1:, :3, :3]).as_rotvec()  # (K-1, 3)
-    w_r = 1.0 / np.sqrt(imu.gyro_noise**2 * tau + 2 * settings.pose_sigma_rad**2)
+    gyro_noise = settings.gyro_noise_scale * imu.gyro_noise
+    accel_noise = settings.accel_noise_scale * imu.accel_noise
+    w_r = 1.0 / np.sqrt(gyro_noise**2 * tau + 2 * settings.pose_sigma_rad**2)
     A = (Hr_g * w_r[:, None, None]).reshape(-1, 3)
     y = (r * w_r[:, None]).reshape(-1)
     P = np.eye(3) / settings.gyro_bias_prior_sigma**2
-    db_g = np.linalg.solve(A.T @ A + P, A.T @ y)
+    N_g = A.T @ A + P
+    db_g = np.linalg.solve(N_g, A.T @ y)
     # velocity at t0 (in the IMU frame at t0) and accelerometer bias from the positions
     e_p = (T[1:, :3, 3] - p0 - 0.5 * np.outer(tau**2, g)) @ R0 - dp - Hp_g @ db_g  # (K-1, 3)
-    w_p = 1.0 / np.sqrt(imu.accel_noise**2 * tau**3 / 3.0 + 2 * settings.pose_sigma_m**2)
+    w_p = 1.0 / np.sqrt(accel_noise**2 * tau**3 / 3.0 + 2 * settings.pose_sigma_m**2)
     A = np.concatenate([np.eye(3)[None] * tau[:, None, None], Hp_a], axis=2) * w_p[:, None, None]
     A = A.reshape(-1, 6)
     y = (e_p * w_p[:, None]).reshape(-1)
@@ -281,7 +295,10 @@ def fit_window(imu: ImuData, params, times, T_w_i, settings: ImuPoseSettings = I
     J = np.hstack([np.eye(3), Hv_a[-1]])
     v_last = R0 @ (u0 + dv[-1] + Hv_a[-1] @ db_a + Hv_g[-1] @ db_g) + g * tau[-1]
     cov_v = R0 @ J @ cov_x @ J.T @ R0.T
-    return WindowFit(b_a0 + db_a, b_g0 + db_g, v_last, 0.5 * (cov_v + cov_v.T))
+    bias_cov = np.zeros((6, 6))
+    bias_cov[:3, :3] = cov_x[3:, 3:]
+    bias_cov[3:, 3:] = np.linalg.inv(N_g)  # the two solves are sequential: cross terms left out
+    return WindowFit(b_a0 + db_a, b_g0 + db_g, v_last, 0.5 * (cov_v + cov_v.T), 0.5 * (bias_cov + bias_cov.T))
 
 
 def adjoint(T) -> np.ndarray:

@@ -9,13 +9,18 @@ from .groundtruth import GroundTruthPoses, GroundTruthPoseSettings
 from .imu import ImuPoseSource
 from .imu_state import ImuPoseSettings
 
-#: pose-source presets: ``gt`` (the sequence's poses) and ``imu`` (gtsam preintegration)
+#: pose-source presets: ``gt`` (the sequence's poses), ``imu`` (gtsam preintegration, the
+#: covariance calibrated on EuRoC V1_01) and ``imu_real_mav`` (``imu`` with the accelerometer
+#: noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md)
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
     "imu": ImuPoseSettings(),
+    "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",
+    "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
+                    "(calibrated on EuRoC V1_01)",
 })
 
 PoseSettings = GroundTruthPoseSettings | ImuPoseSettings

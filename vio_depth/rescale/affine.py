@@ -211,17 +211,6 @@ def _json_float(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def _failed_fit(status: FitStatus, reason: str, n_input: int, n_points: int, n_excluded: int,
-                iterations: int = 0) -> AffineFit:
-    return AffineFit(
-        alpha=math.nan, beta=math.nan, covariance=_NAN_COV, inliers=np.zeros(n_input, bool),
-        n_points=n_points, n_inliers=0, inlier_ratio=0.0, r2=math.nan, disparity_spread=math.nan,
-        relative_spread=math.nan, mean_metric_disparity=math.nan, status=status, reason=reason,
-        iterations=iterations, n_excluded=n_excluded,
-    )
-
-
-
 def metric_disparity_sigma(depth, sigma_depth=None, settings: RansacSettings = RansacSettings(),
                            predicted_disparity=None) -> np.ndarray:
     """Uncertainty of each point's metric disparity, as used by the fits.

@@ -8,6 +8,7 @@ module             job
 ``outputs``        :class:`RunOutputs`: depth PNGs, ``frames.jsonl``, ``metrics.json``
 ``record``         :class:`FrameRecord`, :class:`RunHeader` (docs/frames_schema.md)
 ``summary``        :class:`RunSummary`, the printed table
+``trajectory``     the camera poses the run used (``trajectory.tum``), their ATE / RPE
 =================  ============================================================================
 """
 
@@ -16,6 +17,7 @@ from .outputs import RunOutputs
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .runner import backfill_leading_frames, run_header, run_sequence
 from .summary import RunSummary, format_table
+from .trajectory import TrajectoryReport, run_trajectory, used_poses
 
 __all__ = [
     "RECORD_SCHEMA_VERSION",
@@ -24,6 +26,7 @@ __all__ = [
     "RunOutputs",
     "RunSettings",
     "RunSummary",
+    "TrajectoryReport",
     "backfill_leading_frames",
     "config_from_dict",
     "config_to_dict",
@@ -34,4 +37,6 @@ __all__ = [
     "read_frames_jsonl",
     "run_header",
     "run_sequence",
+    "run_trajectory",
+    "used_poses",
 ]

@@ -43,6 +43,8 @@ class RunSettings:
             with *later* keyframes. Only results with depth replace the forward ones; they
             are marked ``"backfilled": true``. Needs a pose source that works in both
             directions (``gt``; ``imu`` integrates forward only, so its backward pairs fail).
+        rpe_delta_m: metres of path between the pose pairs of the RPE of ``trajectory.tum``
+            (:mod:`vio_depth.run.trajectory`).
         export: the optional outputs (float ``.npy`` depth, previews, PLY clouds, report
             thumbnails; :class:`~vio_depth.export.ExportSettings`, docs/outputs.md).
         report: write ``report/index.html`` and ``report.md`` at the end (needs matplotlib).
@@ -53,6 +55,7 @@ class RunSettings:
     min_eval_depth: float = 1e-3
     max_eval_depth: float = 80.0
     backfill: bool = True
+    rpe_delta_m: float = 1.0
     export: ExportSettings = field(default_factory=ExportSettings)
     report: bool = False
 
@@ -62,6 +65,8 @@ class RunSettings:
         if not 0 <= self.min_eval_depth < self.max_eval_depth:
             raise SettingsError("need 0 <= min_eval_depth < max_eval_depth (metres), got "
                                 f"{self.min_eval_depth!r}, {self.max_eval_depth!r}")
+        if not self.rpe_delta_m > 0:
+            raise SettingsError(f"rpe_delta_m must be positive (metres), got {self.rpe_delta_m!r}")
 
 
 def config_to_dict(pipeline: PipelineSettings, run: RunSettings) -> dict[str, Any]:

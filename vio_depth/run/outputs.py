@@ -1,8 +1,9 @@
-"""Writing a run's outputs: depth (and 1-sigma) PNGs per frame, then frames.jsonl and metrics.json.
+"""Writing a run's outputs: depth (and 1-sigma) PNGs per frame, then frames.jsonl, trajectory.tum
+and metrics.json.
 
 Every file is written under a temporary name and renamed into place when complete, so an
-interrupted run never leaves a half-written file; ``frames.jsonl`` and ``metrics.json``
-appear only when the whole run succeeded.
+interrupted run never leaves a half-written file; ``frames.jsonl``, ``trajectory.tum`` and
+``metrics.json`` appear only when the whole run succeeded.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..evaluation import CameraTrajectory, write_trajectory_tum
 from ..io.depth_png import write_bytes_atomic, write_depth_png
 from ..pipeline import FrameResult
 from ..rescale import depth_sigma_map
@@ -22,7 +24,9 @@ class RunOutputs:
 
     Layout: ``depth/<stem>.png`` (uint16, metres x 256, 0 = invalid), with ``uncertainty``
     also ``uncertainty/<stem>.png`` (1-sigma of the depth from the fit's covariance, same
-    encoding), ``frames.jsonl`` and, with ground truth, ``metrics.json``.
+    encoding), ``frames.jsonl``, ``trajectory.tum`` (the camera poses the run used, TUM
+    format, camera-to-world: :mod:`vio_depth.run.trajectory`) and, with ground-truth depth
+    or poses, ``metrics.json``.
     """
 
     def __init__(self, out_dir, *, uncertainty: bool = False):
@@ -41,8 +45,12 @@ class RunOutputs:
         if self.sigma_dir is not None:
             write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit))
 
-    def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None) -> None:
-        """``frames.jsonl`` (header line, then the records in order) and ``metrics.json`` when given."""
+    def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None,
+               trajectory: CameraTrajectory | None = None) -> None:
+        """``frames.jsonl`` (header line, then the records in order), ``trajectory.tum`` and
+        ``metrics.json`` when given."""
+        if trajectory is not None:
+            write_trajectory_tum(self.root / "trajectory.tum", trajectory)
         if summary is not None:
             write_bytes_atomic(self.root / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
         lines = [json.dumps(header.to_json())] + [json.dumps(r.to_json()) for r in records]

@@ -24,6 +24,7 @@ from .config import RunSettings, config_to_dict
 from .outputs import RunOutputs
 from .record import FrameRecord, RunHeader, frame_record
 from .summary import RunSummary
+from .trajectory import run_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -129,10 +130,13 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     point_rows = [e.points for e in evaluations if e is not None and e.points is not None]
     if point_rows:
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
+    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m)
+    summary.trajectory = trajectory.to_json()
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
-    # frames.jsonl and metrics.json appear only now, complete, after every frame succeeded
-    outputs.finish(header, records, summary if sequence.has_gt_depth else None)
+    # frames.jsonl, trajectory.tum and metrics.json appear only now, complete, after every frame succeeded
+    outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
+                   trajectory.trajectory)
     if settings.report:
         summary.report = str(build_report(out_dir).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,

@@ -19,6 +19,8 @@ class RunSummary:
         seconds: wall time of the run.
         disparity_kind: ``files``, ``simulated``, ``model`` or ``array``.
         run: the run header (version, command line, settings; :class:`~vio_depth.run.record.RunHeader`).
+        trajectory: ``trajectory.tum``'s pose count and, with ground-truth poses, ATE and RPE
+            (:meth:`~vio_depth.run.trajectory.TrajectoryReport.to_json`), or None.
         outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
         report: path of the report's ``index.html`` when one was written, else "".
     """
@@ -32,6 +34,7 @@ class RunSummary:
     seconds: float = 0.0
     disparity_kind: str = ""
     run: dict[str, Any] = field(default_factory=dict)
+    trajectory: dict[str, Any] | None = None
     outputs: dict[str, Any] = field(default_factory=dict)
     report: str = ""
 
@@ -62,6 +65,8 @@ def format_table(summary: RunSummary) -> str:
             f"p90 {p['rel_err_p90_median_of_frames']:.3f} (medians over {p['frames']} frames, "
             f"{p['points_per_frame_median']:.0f} points/frame)"
         )
+    if summary.trajectory is not None:
+        lines.append(_trajectory_line(summary.trajectory))
     if summary.outputs.get("counts"):
         lines.append("also wrote: " + ", ".join(f"{k} {v}" for k, v in summary.outputs["counts"].items()))
     for note in summary.outputs.get("notes", []):
@@ -71,3 +76,18 @@ def format_table(summary: RunSummary) -> str:
     if summary.disparity_kind == "simulated":
         lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
     return "\n".join(lines)
+
+
+def _trajectory_line(report: dict) -> str:
+    """One line: the poses in trajectory.tum and, with ground-truth poses, ATE and RPE."""
+    line = f"trajectory.tum: {report['poses']} camera poses"
+    ate, rpe = report.get("ate"), report.get("rpe")
+    if ate is not None:
+        line += (f"; ATE {ate['ate_m']['rmse']:.4f} m RMSE over {ate['ate_m']['n']} poses (SE(3)-aligned, "
+                 f"no scale correction; Sim(3) scale {ate['sim3_scale']:.4f})")
+    if rpe is not None:
+        line += (f"; RPE per {rpe['delta_m']:g} m: {rpe['translation_m']['rmse']:.4f} m, "
+                 f"{rpe['rotation_deg']['rmse']:.3f} deg RMSE ({rpe['translation_m']['n']} pairs)")
+    if report.get("note"):
+        line += f" ({report['note']})"
+    return line

@@ -244,3 +244,15 @@ def test_disparity_source_json_round_trip_and_validation():
     assert DisparitySpec.files("d").to_json() == {"kind": "files", "folder": "d"}
     with pytest.raises(InputError):
         DisparitySpec.simulated(-1)
+
+
+def test_equidistant_camera_round_trips(tmp_path):
+    """A fisheye camera keeps its model through write and read; radtan files carry no model key."""
+    cam = Camera(32, 24, 20.0, 20.0, 15.5, 11.5, (0.01, -0.002, 0.0005, -0.0001), model="equidistant")
+    img = np.zeros((24, 32, 3), np.uint8)
+    write_native_sequence(tmp_path / "fish", "fish", cam, [0.0, 0.1], [img, img], [np.eye(4), np.eye(4)])
+    assert NativeSequence(tmp_path / "fish").camera == cam
+    plain = Camera(32, 24, 20.0, 20.0, 15.5, 11.5)
+    write_native_sequence(tmp_path / "plain", "plain", plain, [0.0], [img], [np.eye(4)])
+    assert '"model"' not in (tmp_path / "plain" / "sequence.json").read_text()
+    assert NativeSequence(tmp_path / "plain").camera == plain

@@ -146,3 +146,18 @@ def test_associate_nearest():
     assert got.tolist() == [-1, -1, -1, 3, -1]
     got = associate_nearest(np.array([0.04, 0.06]), ref, 0.05)
     assert got.tolist() == [0, 1]
+
+
+def test_real_tum_folder_whatever_its_name_and_through_a_symlink(tmp_path):
+    """A renamed real TUM folder is recognised by rgb.txt's header; a symlink keeps its name."""
+    renamed = write_tum(tmp_path / "my_recording")
+    rgb = renamed / "rgb.txt"
+    rgb.write_text("# color images\n# file: 'rgbd_dataset_freiburg1_rpy.bag'\n" + rgb.read_text())
+    seq = open_sequence(renamed)
+    assert isinstance(seq, TumRgbdSequence) and seq.camera.dist == TUM_CAMERAS["freiburg1"].dist
+    target = write_tum(tmp_path / "data_0001")
+    link = tmp_path / "rgbd_dataset_freiburg2_desk"
+    link.symlink_to(target, target_is_directory=True)
+    seq = open_sequence(link)
+    assert seq.name == "rgbd_dataset_freiburg2_desk"
+    assert seq.camera.dist == TUM_CAMERAS["freiburg2"].dist
