@@ -209,8 +209,9 @@ def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
 
 def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
-    det = np.linalg.det(A)
-    scale = np.einsum("nii->n", A) ** 3
+    with np.errstate(invalid="ignore", over="ignore"):
+        det = np.linalg.det(np.nan_to_num(A))
+    scale = np.einsum("nii->n", np.nan_to_num(A)) ** 3
     ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
     x = np.full(b.shape, np.nan)
     if ok.any():
@@ -296,6 +297,9 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     X2, ok2 = _linear_points(t, rays_w, centres, w, n_tracks)
     X = np.where(ok2[:, None], X2, X)
     mark(~(ok | ok2), TrackStatus.LOW_PARALLAX)
+    # rays that meet behind every camera: no point in front can explain them
+    z_lin = np.einsum("nj,nj->n", X[t] - centres, R_cw[:, 2, :])
+    mark(_sum_by(t, (inlier & (z_lin > 0)).astype(float), n_tracks) == 0, TrackStatus.BEHIND_CAMERA)
 
     # whitening of each observation: pixel noise + image motion from pose uncertainty
     def obs_info(p_c):
@@ -360,7 +364,8 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     p_c, r = residuals(X)
     Jp, S_inv, J_pose = obs_info(p_c)
     e = np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6))
-    inlier &= active[t] & (p_c[:, 2] > 0) & (e <= s.max_residual_sigmas**2)
+    behind = p_c[:, 2] <= 0
+    inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
     mark(n_in < 2, TrackStatus.REPROJECTION)
 
