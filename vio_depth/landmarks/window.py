@@ -105,8 +105,9 @@ class LandmarkPoints:
         T_w_c: (4, 4) the frame's refined pose (its prior when not refined), or None.
         associated: keypoints associated with a landmark before the residual gate.
         pose_refined: whether the pose was refined (keyframes: by the window).
-        covariance: (6, 6) covariance of ``T_w_c`` relative to the newest keyframe, or None.
         reason: why there are no (or few) points, else "".
+        covariance: (6, 6) covariance of ``T_w_c`` relative to the newest keyframe, or None.
+        keypoint_index: (N,) int, index of each point's keypoint in the frame's features.
     """
 
     uv: np.ndarray
@@ -118,6 +119,15 @@ class LandmarkPoints:
     pose_refined: bool = False
     reason: str = ""
     covariance: np.ndarray | None = None
+    keypoint_index: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = len(check_array("depth", self.depth, (None,)))
+        check_array("uv", self.uv, (n, 2))
+        check_array("sigma_depth", self.sigma_depth, (n,))
+        check_array("landmark_ids", self.landmark_ids, (n,), dtype="int")
+        if self.keypoint_index is None:
+            object.__setattr__(self, "keypoint_index", np.full(n, -1, np.int64))
 
     def __len__(self) -> int:
         return len(self.depth)
@@ -450,7 +460,7 @@ class LandmarkWindow:
                 out = LandmarkPoints.empty("no landmark of the window qualifies in this keyframe", self.pose(frame_id))
                 return LandmarkPoints(**{**out.__dict__, "covariance": rel_cov})
             return LandmarkPoints(obs.uv[sel], lm.depth[sel], lm.sigma_depth[sel], obs.track[sel],
-                                  self.pose(frame_id), int(sel.sum()), True, "", rel_cov)
+                                  self.pose(frame_id), int(sel.sum()), True, "", rel_cov, obs.keypoint[sel])
         if T_w_c is None:
             raise InputError("landmarks: a frame that is not a keyframe of the window needs a pose prior")
         T_prior = check_transform("T_w_c", T_w_c)
@@ -492,7 +502,7 @@ class LandmarkWindow:
         if not refined:
             reason = (reason + "; " if reason else "") + f"pose not refined ({n_assoc} landmarks < {s.min_query_points})"
         return LandmarkPoints(kp[kp_idx][ok], depth[ok], sigma[ok], tracks[kp_idx][ok], T, n_assoc, refined, reason,
-                              cov)
+                              cov, kp_idx[ok])
 
 
 def _subset(gtsam, values, keys):

@@ -23,6 +23,7 @@ class Scene:
     T_prior: np.ndarray  # (F, 4, 4) noisy priors
     features: list  # per frame Features; descriptor = one-hot point id (matched by id)
     ids: list  # per frame (N,) point id of each keypoint
+    outlier: list  # per frame (N,) bool: keypoint moved by 20-60 px (a wrong match)
     camera: Camera
 
     def depth_of(self, frame: int, ids) -> np.ndarray:
@@ -53,7 +54,7 @@ def make_scene(n_frames=24, n_points=600, step_m=0.05, depth=(2.0, 6.0), pixel_s
     uv = np.column_stack([rng.uniform(0, camera.width, n_points), rng.uniform(0, camera.height, n_points)])
     p_c = np.column_stack([(uv[:, 0] - camera.cx) / camera.fx * z, (uv[:, 1] - camera.cy) / camera.fy * z, z])
     points = p_c @ mid[:3, :3].T + mid[:3, 3]
-    feats, ids = [], []
+    feats, ids, outliers = [], [], []
     for k in range(n_frames):
         T = T_true[k]
         pc = (points - T[:3, 3]) @ T[:3, :3]
@@ -64,12 +65,13 @@ def make_scene(n_frames=24, n_points=600, step_m=0.05, depth=(2.0, 6.0), pixel_s
         bad = rng.random(len(idx)) < outlier_fraction
         obs[bad] += rng.uniform(20, 60, (bad.sum(), 2)) * rng.choice([-1, 1], (bad.sum(), 2))
         perm = rng.permutation(len(idx))
-        idx, obs = idx[perm], obs[perm]
+        idx, obs, bad = idx[perm], obs[perm], bad[perm]
+        outliers.append(bad)
         desc = np.zeros((len(idx), 1), np.float32)
         desc[:, 0] = idx
         feats.append(Features(obs.astype(np.float32), desc, np.ones(len(idx), np.float32), (camera.width, camera.height)))
         ids.append(idx)
-    return Scene(points, T_true, T_prior, feats, ids, camera)
+    return Scene(points, T_true, T_prior, feats, ids, outliers, camera)
 
 
 class IdMatcher:
