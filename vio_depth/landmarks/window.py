@@ -243,10 +243,15 @@ class LandmarkWindow:
 
     # ------------------------------------------------------------------ keyframes
     def _prior_covariance(self, translation_m: float) -> np.ndarray:
+        """(6, 6) prior covariance of a pose relative to another ``translation_m`` away: the
+        relative prior, or twice the absolute prior's variance where that is smaller (two
+        independent absolute errors)."""
         p = self.settings.pose_prior
-        r = np.radians(p.relative_rotation_deg)
-        t = p.relative_translation_sigma(translation_m)
-        return np.diag([r * r] * 3 + [t * t] * 3)
+        var = p.relative_sigmas(translation_m) ** 2
+        if p.absolute_on_every_keyframe:
+            a = np.array([np.radians(p.absolute_rotation_deg)] * 3 + [p.absolute_translation_m] * 3)
+            var = np.minimum(var, 2.0 * a * a)
+        return np.diag(var)
 
     def add_keyframe(self, kf: KeyframeInput) -> WindowUpdate:
         """Insert a keyframe, refine the window, marginalise the oldest keyframe beyond it."""
@@ -275,8 +280,7 @@ class LandmarkWindow:
                 self._factors.append((frozenset([X(fid)]), gtsam.PriorFactorPose3(X(fid), gtsam.Pose3(kf.T_w_c), noise)))
             if prev is not None and p.absolute_on_every_keyframe and prev.T_w_c is not None:
                 T_rel = invert_transform(prev.T_w_c) @ kf.T_w_c
-                noise = _pose_noise(gtsam, np.radians(p.relative_rotation_deg),
-                                    p.relative_translation_sigma(float(np.linalg.norm(T_rel[:3, 3]))))
+                noise = gtsam.noiseModel.Diagonal.Sigmas(p.relative_sigmas(float(np.linalg.norm(T_rel[:3, 3]))))
                 self._factors.append((frozenset([X(prev.frame_id), X(fid)]),
                                       gtsam.BetweenFactorPose3(X(prev.frame_id), X(fid), gtsam.Pose3(T_rel), noise)))
             if not new_values.exists(X(fid)):
@@ -334,6 +338,12 @@ class LandmarkWindow:
         from gtsam.symbol_shorthand import L, X
 
         s = self.settings
+        if s.pose_prior.absolute_on_every_keyframe and s.restart_from_priors:
+            # every refinement starts from the priors: a window that went astray (e.g. while
+            # it had too few keyframes to fix the scale) does not carry its error forward
+            for f, k in self._kf.items():
+                if k.info.T_w_c is not None:
+                    self._values.update(X(f), gtsam.Pose3(k.info.T_w_c))
         obs, mv = self._triangulate()
         # per-track outlier rejection: observations outside the gate leave their track
         out = ~mv.inlier & (mv.status[mv.obs_track] != TrackStatus.TOO_FEW_VIEWS)
@@ -405,7 +415,7 @@ class LandmarkWindow:
         old = {X(frame_id), *self._kf[frame_id].extra_keys}
         touching = [(k, f) for k, f in self._factors if k & old]
         self._factors = [(k, f) for k, f in self._factors if not k & old]
-        if touching:
+        if touching and self.motion_factors is not None:
             graph = gtsam.NonlinearFactorGraph()
             for _, f in touching:
                 graph.add(f)
