@@ -120,7 +120,7 @@ class TrackTable:
             return Observations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
         obs = Observations(np.concatenate(tr), np.concatenate(fr), np.concatenate(kp), np.concatenate(uv))
         if min_length > 1:
-            ids, inv, counts = np.unique(obs.track, return_inverse=True, return_counts=True)
+            _, inv, counts = np.unique(obs.track, return_inverse=True, return_counts=True)
             keep = counts[inv] >= min_length
             obs = Observations(obs.track[keep], obs.frame[keep], obs.keypoint[keep], obs.uv[keep])
         return obs

@@ -81,5 +81,5 @@ class IdMatcher:
 
     def match(self, a: Features, b: Features) -> Matches:
         ia, ib = a.descriptors[:, 0].astype(np.int64), b.descriptors[:, 0].astype(np.int64)
-        common, pa, pb = np.intersect1d(ia, ib, return_indices=True)
+        _, pa, pb = np.intersect1d(ia, ib, return_indices=True)
         return Matches(pa.astype(np.int64), pb.astype(np.int64), np.ones(len(pa), np.float32))

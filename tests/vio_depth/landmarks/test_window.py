@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from triangulation import TriangulationSettings, triangulate_pair
-from vio_core.errors import InputError, SettingsError
+from vio_core.errors import InputError, SettingsError, UnknownNameError
 from vio_core.geometry import invert_transform, make_transform
 from vio_depth.landmarks import (
     FrameMatches,
@@ -200,5 +200,5 @@ def test_settings_are_checked():
         LandmarkSettings(window_keyframes=1)
     with pytest.raises(SettingsError):
         PosePriorSettings(absolute_translation_m=0.0)
-    with pytest.raises(Exception):
+    with pytest.raises(UnknownNameError):
         pose_prior_preset("nonsense")
