@@ -1,5 +1,13 @@
-"""Two-view triangulation of matched keypoints with a known metric relative pose."""
+"""Triangulation with known metric poses: two views (``triangulate``) and N-view tracks
+with pose uncertainty (``multiview``)."""
 
+from .multiview import (
+    MultiviewPoints,
+    MultiviewSettings,
+    TrackStatus,
+    depth_in_view,
+    triangulate_tracks,
+)
 from .triangulate import (
     PointStatus,
     TriangulatedPoints,
@@ -11,6 +19,11 @@ from .triangulate import (
 )
 
 __all__ = [
+    "MultiviewPoints",
+    "MultiviewSettings",
+    "TrackStatus",
+    "depth_in_view",
+    "triangulate_tracks",
     "PointStatus",
     "TriangulatedPoints",
     "TriangulationSettings",
