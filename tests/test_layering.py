@@ -24,6 +24,7 @@ RANKS = {
     "vio_depth.poses": 5,
     "vio_depth.keyframes": 5,
     "vio_depth.rescale": 5,
+    "vio_depth.landmarks": 5,
     "vio_depth.evaluation": 6,
     "vio_depth.export": 6,
     "vio_depth.report": 7,
@@ -84,7 +85,8 @@ def _rank(module: str) -> int:
         if module == prefix or module.startswith(prefix + "."):
             if best is None or len(prefix) > len(best[0]):
                 best = (prefix, rank)
-    assert best is not None, f"{module}: not in the layer table of tests/test_layering.py"
+    assert best is not None and (best[0] != "vio_depth" or module == "vio_depth"), \
+        f"{module}: not in the layer table of tests/test_layering.py"
     return best[1]
 
 

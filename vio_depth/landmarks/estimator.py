@@ -23,6 +23,7 @@ import numpy as np
 from triangulation.multiview import TrackStatus, triangulate_tracks
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
+
 from .settings import LandmarkSettings
 from .tracks import FrameMatches
 from .window import KeyframeInput, LandmarkPoints, LandmarkWindow, MotionFactorSource, WindowUpdate
