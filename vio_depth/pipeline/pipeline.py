@@ -12,12 +12,14 @@ import time
 from dataclasses import replace
 
 from matchers import Features, Matcher, create_matcher
+from vio_core.errors import SettingsError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
 from ..frame import Frame
-from ..poses import PoseSource, create_pose_source
+from ..poses import GroundTruthPoses, PoseSource, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
+from .landmark_points import LandmarkPointsStage
 from .points import TwoViewPoints
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
@@ -53,6 +55,13 @@ class Pipeline:
             matcher = create_matcher(settings.matcher) if matcher is None else matcher
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
                                         settings.min_matches)
+        elif settings.points.kind == PointSourceKind.LANDMARKS:
+            if not isinstance(self.pose_source, GroundTruthPoses):
+                raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
+                                    f"the {self.pose_source.name!r} pose source gives relative poses only")
+            matcher = create_matcher(settings.matcher) if matcher is None else matcher
+            self.points = LandmarkPointsStage(matcher, settings.landmarks.resolved(getattr(sequence, "pose_kind",
+                                                                                           "mocap")))
 
     @property
     def matcher(self) -> Matcher | None:

@@ -48,6 +48,32 @@ class PairAttempt:
         return ""
 
 
+@dataclass(frozen=True)
+class LandmarkInfo:
+    """What the landmark window did for a frame (``--points landmarks``).
+
+    Attributes:
+        keyframe: the frame became a keyframe; ``keyframe_reason`` says why.
+        matches: feature matches with the window's newest keyframes.
+        associated: keypoints associated with a landmark.
+        pose_refined: the frame's pose was refined against the landmarks (or by the window).
+        window_keyframes: keyframes in the window after this frame.
+        window_residual_px: median reprojection residual of the window's landmarks after
+            its refinement (keyframes only), pixels.
+        pose_shift_sigmas: largest move of a keyframe pose from its prior in that refinement,
+            in prior sigmas (keyframes only): large values mean the images and the poses disagree.
+    """
+
+    keyframe: bool
+    keyframe_reason: str
+    matches: int
+    associated: int
+    pose_refined: bool
+    window_keyframes: int
+    window_residual_px: float | None = None
+    pose_shift_sigmas: float | None = None
+
+
 @dataclass
 class PointsOutcome:
     """The metric points of one frame and how they were obtained.
@@ -62,6 +88,9 @@ class PointsOutcome:
         depth: (N,) metres, z in this camera.
         sigma: (N,) metres, 1-sigma of ``depth``, or None (reference points: exact).
         confidence: (N,) matching confidence in [0, 1], or None.
+        landmarks: what the landmark window did (``--points landmarks``), else None.
+        T_w_c: (4, 4) camera-to-world pose of the frame as the stage used it (the landmark
+            window's refined pose), or None when the stage used relative poses only.
         timings: seconds of ``matching`` and ``triangulation``, summed over the pairs.
     """
 
@@ -73,6 +102,8 @@ class PointsOutcome:
     depth: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
     confidence: np.ndarray | None = field(default=None, repr=False)
+    landmarks: LandmarkInfo | None = None
+    T_w_c: np.ndarray | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict, repr=False)
 
     @property
@@ -81,7 +112,7 @@ class PointsOutcome:
 
     @property
     def matches(self) -> int:
-        return sum(a.matches for a in self.attempts)
+        return self.landmarks.matches if self.landmarks is not None else sum(a.matches for a in self.attempts)
 
     @property
     def motion(self) -> Motion | None:

@@ -1,0 +1,147 @@
+"""Benchmark: multi-view landmarks (gtsam window) against the two-view pipeline, same rescaler.
+
+For each dataset both paths process the same frames in order, with SIFT, the sequence's
+poses, RANSAC seed 0 and the CLI's rescaler defaults (fallbacks and temporal filter on):
+
+* ``two-view`` (the named baseline): ``vio-depth run --points sfm`` (pairing preset below,
+  offline backfill on), through :func:`vio_depth.run.run_sequence`;
+* ``landmarks``: ``vio-depth run --points landmarks`` (default
+  :class:`~vio_depth.landmarks.LandmarkSettings`; the pose prior is the preset of the
+  sequence's kind of poses, ``Sequence.pose_kind``; no pairing preset), the same runner.
+
+Datasets (a missing folder is skipped; ``--data`` points at the shared data folder):
+
+========  ==========================================  ========  =============  ============  =========
+name      folder                                      frames    two-view pair  pose prior    max depth
+========  ==========================================  ========  =============  ============  =========
+7scenes   DATA/7scenes_redkitchen (real, KinectFusion)  0-299    indoor         kinectfusion  10 m
+kitti     DATA/kitti_tiny (real, OXTS)                  0-6      kitti          ins           80 m
+street    sample_sequences/street (rendered)            all 130  kitti          exact         80 m
+room      sample_sequences/room (rendered)              all 120  indoor         exact         10 m
+========  ==========================================  ========  =============  ============  =========
+
+**Every dense figure uses SIMULATED disparity**: 7-Scenes and KITTI get
+``--disparity simulated`` (seed 0), the samples their own simulated maps. Point errors are real
+on 7-Scenes and KITTI (real images and poses against Kinect / LiDAR depth).
+
+Columns: ``pt med`` / ``pt p90``: medians over frames of each frame's median / 90th
+percentile of ``|z - z_gt| / z_gt`` of the points fed to the fit
+(:func:`vio_depth.evaluation.point_depth_errors`, 5x5 window-median reference);
+``bias``: median over frames of the signed median; ``pts/fr``: median points per frame;
+``AbsRel`` / ``delta1``: frame-averaged dense metrics over the frames with depth
+(:func:`vio_depth.evaluation.compute_metrics`), ``oracle`` the least-squares fit of the same
+disparity on the same frames; ``x oracle`` their ratio; ``depth``: frames given depth /
+frames processed; ``bad ok``: frames with status ok whose AbsRel exceeds 2 x their own
+oracle + 0.02.
+
+Run: ``python benchmarks/bench_landmarks.py [--datasets 7scenes,kitti,street,room]
+[--frames N] [--data DIR] [--paths two-view,landmarks]``. Seconds per frame are printed
+(the run's median pipeline time): compare them only within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # run as a script from anywhere: this checkout's packages first
+    sys.path.insert(0, str(REPO))
+
+from vio_depth import Pipeline, PipelineSettings, open_sequence  # noqa: E402
+from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Dataset:
+    name: str
+    path: str  # relative to --data ("DATA/...") or to the repository
+    pairing: str
+    disparity: str  # "simulated" or "sequence"
+    max_depth: float
+    frames: int | None = None
+
+
+DATASETS = {d.name: d for d in (
+    Dataset("7scenes", "DATA/7scenes_redkitchen", "indoor", "simulated", 10.0, 300),
+    Dataset("kitti", "DATA/kitti_tiny", "kitti", "simulated", 80.0),
+    Dataset("street", "sample_sequences/street", "kitti", "sequence", 80.0),
+    Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
+)}
+PATHS = {"two-view": "sfm", "landmarks": "landmarks"}
+
+
+def run_path(ds: Dataset, sequence, n: int, path: str, out: Path) -> tuple[dict, list[dict]]:
+    """One path over the first ``n`` frames: ``(metrics.json, frame records)``."""
+    settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing)
+    settings = PipelineSettings.from_dict({"disparity": {"source": ds.disparity}}, settings)
+    run_sequence(sequence, Pipeline(settings, sequence=sequence), out,
+                 RunSettings(max_frames=n, max_eval_depth=ds.max_depth), progress=False)
+    return json.loads((out / "metrics.json").read_text()), read_frames_jsonl(out / "frames.jsonl")[1]
+
+
+def _median(values) -> float:
+    values = [v for v in values if v is not None]
+    return float(np.median(values)) if values else float("nan")
+
+
+def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
+    row = metrics["metrics"].get(PATHS[path], {})
+    oracle = metrics["metrics"].get("oracle", {})
+    bad = [f["frame"] for f in frames if f["status"] == "ok" and f.get("abs_rel") is not None
+           and f.get("oracle_abs_rel") is not None and f["abs_rel"] > 2 * f["oracle_abs_rel"] + 0.02]
+    ratio = row.get("abs_rel", float("nan")) / oracle.get("abs_rel", float("nan")) if oracle else float("nan")
+    statuses = ", ".join(f"{k} {v}" for k, v in sorted(metrics["status_counts"].items()))
+    line = (f"{path:10s} {_median(f.get('points_rel_err_median') for f in frames):7.4f} "
+            f"{_median(f.get('points_rel_err_p90') for f in frames):7.4f} "
+            f"{_median(f.get('points_rel_err_bias') for f in frames):+7.4f} "
+            f"{_median(f['triangulated_points'] for f in frames):6.0f} {row.get('abs_rel', float('nan')):7.4f} "
+            f"{row.get('delta1', float('nan')):7.4f} {oracle.get('abs_rel', float('nan')):7.4f} {ratio:8.2f} "
+            f"{metrics['frames_with_depth']:4d}/{metrics['frames_processed']:<4d} {len(bad):5d} "
+            f"{_median(f['seconds'] for f in frames):6.3f}")
+    line += f"\n  {path} statuses: {statuses}"
+    if bad:
+        line += f"\n  {path} ok frames above 2 x oracle + 0.02: {bad[:40]}" + (" ..." if len(bad) > 40 else "")
+    return line
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", default="7scenes,kitti,street,room")
+    parser.add_argument("--paths", default="two-view,landmarks")
+    parser.add_argument("--frames", type=int, default=None, help="cap every dataset at N frames")
+    parser.add_argument("--data", type=Path, default=REPO / ".." / "shared" / "data")
+    args = parser.parse_args(argv)
+    print(f"bench_landmarks, {datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPU cores, "
+          f"python {platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.1f}")
+    print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
+    head = (f"{'path':10s} {'pt med':>7s} {'pt p90':>7s} {'bias':>7s} {'pts/fr':>6s} {'AbsRel':>7s} "
+            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s}")
+    for name in args.datasets.split(","):
+        ds = DATASETS[name]
+        folder = (args.data / ds.path[5:]) if ds.path.startswith("DATA/") else REPO / ds.path
+        if not folder.exists():
+            print(f"\n{name}: {folder} missing, skipped")
+            continue
+        sequence = open_sequence(folder)
+        n = min(len(sequence), ds.frames or len(sequence), args.frames or len(sequence))
+        print(f"\n{name}: {folder.name}, frames 0-{n - 1}, max depth {ds.max_depth:g} m, two-view pairing "
+              f"'{ds.pairing}', landmark pose prior '{sequence.pose_kind}'\n{head}")
+        with tempfile.TemporaryDirectory() as tmp:
+            for path in args.paths.split(","):
+                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path)
+                print(format_row(path, metrics, frames), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
