@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import io
 import os
 import shutil
@@ -53,6 +52,7 @@ import numpy as np  # noqa: E402
 import throughput_data as data  # noqa: E402
 
 from matchers import SiftSettings  # noqa: E402
+from vio_depth.baselines import paper_reference  # noqa: E402
 from vio_depth.cli import main as vio_depth_main  # noqa: E402
 from vio_depth.disparity import FileDisparity  # noqa: E402
 from vio_depth.io import open_sequence  # noqa: E402
@@ -64,29 +64,6 @@ DATASETS = {
     "kitti_tiny": ("kitti_tiny", 61, "kitti", "kitti"),
     "room_vga": ("room_vga", 120, "indoor", "indoor"),
 }
-
-
-# ----------------------------------------------------------------------------- the baseline module
-def paper_reference_module():
-    """``vio_depth.baselines.paper_reference`` (branch ``eval``).
-
-    TODO(issue 11): once ``eval`` is merged into main this is a plain import; until then the
-    module is read from the ``eval`` branch with git and loaded from the cache folder.
-    """
-    try:
-        from vio_depth.baselines import paper_reference
-        return paper_reference
-    except ImportError:
-        pass
-    text = subprocess.run(["git", "-C", str(ROOT), "show", "eval:vio_depth/baselines/paper_reference.py"],
-                          check=True, capture_output=True, text=True).stdout
-    text = text.replace("from ..disparity import", "from vio_depth.disparity import")
-    path = Path(tempfile.gettempdir()) / "vio_depth_paper_reference_from_eval.py"
-    path.write_text(text)
-    spec = importlib.util.spec_from_file_location("paper_reference_from_eval", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 # ----------------------------------------------------------------------------- the three measurements
@@ -267,7 +244,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(f"bench_throughput: {os.cpu_count()} CPUs, OpenCV {cv2.__version__} with {cv2.getNumThreads()} threads, "
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, numpy {np.__version__}")
-    paper = None if args.no_paper else paper_reference_module()
+    paper = None if args.no_paper else paper_reference
     ok, checked = True, False
     for name in args.datasets:
         view = prepare(name, args.cache)
