@@ -6,12 +6,13 @@ times, best of each:
 
 * ``sequential``: every stage in the calling thread (``overlap=False``); also with
   ``cv2.setNumThreads(1)``;
-* ``threads``: prefetch (decode, SIFT, disparity) and writer in threads, OpenCV's pool
-  reduced to the cores left over (1 on 2 cores; the default);
-* ``threads, cv2 2 threads``: the same with OpenCV's 2 threads;
-* ``threads, SIFT in pipeline``: the prefetch thread decodes and reads the disparity only;
+* ``threads``: prefetch (decode, SIFT, disparity) in one thread per core (2), writer in a
+  thread, OpenCV's pool reduced to the cores left over (1 on 2 cores; the default);
+* ``threads, 1 prefetch thread``: the same with a single prefetch thread;
+* ``threads, 1 prefetch thread, cv2 2 threads``: that with OpenCV's 2 threads;
+* ``threads, SIFT in pipeline``: the prefetch threads decode and read the disparity only;
   SIFT of frame t+1 then no longer runs while frame t is matched and fitted;
-* ``process prefetch``: the prefetch in a separate process (``spawn``; the child opens the
+* ``process prefetch``: the prefetch in one separate process (``spawn``; the child opens the
   sequence and builds its own pipeline; image, features and disparity are pickled back),
   writer in a thread.
 
@@ -43,7 +44,7 @@ import vio_depth.run.runner as runner  # noqa: E402
 from vio_depth import Pipeline, PipelineSettings, open_sequence, run_sequence  # noqa: E402
 from vio_depth.pipeline import PreparedFrame  # noqa: E402
 from vio_depth.run import RunSettings  # noqa: E402
-from vio_depth.run.overlap import Prefetcher, overlap_opencv_threads  # noqa: E402
+from vio_depth.run.overlap import Prefetcher, overlap_opencv_threads, prefetch_workers  # noqa: E402
 
 # ----------------------------------------------------------------------------- SIFT in the pipeline lane
 
@@ -92,7 +93,7 @@ class ProcessPrefetcher:
 
     context: dict = {}
 
-    def __init__(self, produce, indices, depth: int = 2, *, threaded: bool = True, name: str = ""):
+    def __init__(self, produce, indices, depth: int = 2, *, threaded: bool = True, workers: int = 1, name: str = ""):
         c = self.context
         self._sequence = c["sequence"]
         self._pool = cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
@@ -135,8 +136,10 @@ def run_variant(variant: str, view: Path, out: Path) -> float:
     cv_threads = cv2.getNumThreads()
     if variant.endswith("cv2 1 thread"):
         cv2.setNumThreads(1)
+    if "1 prefetch thread" in variant:
+        runner.prefetch_workers = lambda concurrent: 1
     if variant.endswith("cv2 2 threads"):
-        runner.overlap_opencv_threads = lambda: 2
+        runner.overlap_opencv_threads = lambda workers: 2
     if variant == "process prefetch":
         ProcessPrefetcher.context = {"sequence": seq, "settings": settings}
         runner.Prefetcher = ProcessPrefetcher
@@ -148,11 +151,12 @@ def run_variant(variant: str, view: Path, out: Path) -> float:
     finally:
         runner.Prefetcher = Prefetcher
         runner.overlap_opencv_threads = overlap_opencv_threads
+        runner.prefetch_workers = prefetch_workers
         cv2.setNumThreads(cv_threads)
 
 
-VARIANTS = ("sequential", "sequential, cv2 1 thread", "threads", "threads, cv2 2 threads", "threads, SIFT in pipeline",
-            "process prefetch")
+VARIANTS = ("sequential", "sequential, cv2 1 thread", "threads", "threads, 1 prefetch thread",
+            "threads, 1 prefetch thread, cv2 2 threads", "threads, SIFT in pipeline", "process prefetch")
 
 
 def main(argv=None) -> int:

@@ -25,6 +25,7 @@ match, 0 for one that barely passed the ratio test.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -178,26 +179,30 @@ class SiftMatcher:
     """OpenCV SIFT extraction + ratio/mutual matching (see the module docstring).
 
     ``extract`` runs the detector once per image; ``match`` only compares stored
-    descriptors and never touches the detector.
+    descriptors and never touches the detector. ``extract`` may run in several threads at
+    once (each thread has its own OpenCV detector; OpenCV releases the GIL while it works).
     """
 
     name = "sift"
+    #: ``extract`` is safe to call from several threads at once
+    concurrent_extract = True
 
     def __init__(self, settings: SiftSettings | None = None):
         self.settings = SiftSettings() if settings is None else settings
-        self._sift = None
+        self._local = threading.local()
 
     def _detector(self):
-        if self._sift is None:
+        sift = getattr(self._local, "sift", None)
+        if sift is None:
             s = self.settings
-            self._sift = cv2.SIFT_create(
+            sift = self._local.sift = cv2.SIFT_create(
                 nfeatures=s.max_features,
                 nOctaveLayers=s.n_octave_layers,
                 contrastThreshold=s.contrast_threshold,
                 edgeThreshold=s.edge_threshold,
                 sigma=s.sigma,
             )
-        return self._sift
+        return sift
 
     def extract(self, image) -> Features:
         """SIFT features of ``image: (H, W, 3) uint8 RGB``.

@@ -241,3 +241,18 @@ def test_reverse_direction_on_candidates_only_gives_the_full_matchers_matches(as
         b = normalize_descriptors(base[rng.permutation(len(base))[:nb]] + rng.random((nb, 128)) * 40)
         _same_matches(a, b)
         _same_matches(np.vstack([a, a[:3]]), np.vstack([b, b[:3]]))  # exact ties: duplicate descriptors
+
+
+def test_extract_in_several_threads_at_once_gives_the_same_features(astronaut_pair):
+    from concurrent.futures import ThreadPoolExecutor
+
+    m = SiftMatcher()
+    images = [astronaut_pair[k % 2][:, 16 * k:] for k in range(6)]
+    alone = [m.extract(im) for im in images]
+    with ThreadPoolExecutor(3) as pool:
+        together = list(pool.map(m.extract, images))
+    assert SiftMatcher.concurrent_extract
+    for a, b in zip(alone, together):
+        assert len(a) > 100
+        np.testing.assert_array_equal(a.keypoints, b.keypoints)
+        np.testing.assert_array_equal(a.descriptors, b.descriptors)

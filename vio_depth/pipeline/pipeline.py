@@ -81,8 +81,8 @@ class Pipeline:
         """The frame's stateless stages: image decoding, features, disparity.
 
         They read nothing of the pipeline's state (keyframes, filter), so frames may be
-        prepared ahead of :meth:`process_prepared`, in another thread (one thread at a
-        time: the matcher's detector is not shared between threads). ``features``: this
+        prepared ahead of :meth:`process_prepared`, in other threads (several at once when
+        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread). ``features``: this
         frame's features extracted earlier by the same matcher (the image is then not read
         here).
         """

@@ -53,11 +53,25 @@ DEFAULT_DEPTH = 2
 _POLL_S = 0.05
 
 
-def overlap_opencv_threads(cpus: int | None = None) -> int:
-    """OpenCV's thread count while a run overlaps: the cores the pipeline and writer lanes
-    leave to the prefetch lane's SIFT, at least 1 (2 cores: 1, i.e. OpenCV's pool off)."""
+#: most prefetch threads a run uses
+MAX_PREFETCH_WORKERS = 4
+
+
+def prefetch_workers(concurrent: bool, cpus: int | None = None) -> int:
+    """Prefetch threads of an overlapped run: one per core up to :data:`MAX_PREFETCH_WORKERS`
+    when the preparation may run in several threads at once (``concurrent``: SIFT features
+    and no model inference), else 1. On 2 cores: 2, i.e. frames t+1 and t+2 are prepared
+    while frame t is processed and frame t-1 written."""
     cpus = (os.cpu_count() or 1) if cpus is None else cpus
-    return max(1, cpus - 2)
+    return max(1, min(cpus, MAX_PREFETCH_WORKERS)) if concurrent else 1
+
+
+def overlap_opencv_threads(workers: int = 1, cpus: int | None = None) -> int:
+    """OpenCV's thread count while a run overlaps: the cores left over by ``workers``
+    prefetch threads, the pipeline and the writer, at least 1 (on 2 cores: 1, OpenCV's
+    pool off)."""
+    cpus = (os.cpu_count() or 1) if cpus is None else cpus
+    return max(1, cpus - workers - 2)
 
 
 @contextlib.contextmanager
@@ -80,72 +94,88 @@ def opencv_threads(n: int | None) -> Iterator[None]:
 
 
 class Prefetcher:
-    """``produce(i)`` for each of ``indices``, in order, at most ``depth`` results ahead of :meth:`get`.
+    """``produce(i)`` for each of ``indices``, delivered in order by :meth:`get`, at most
+    ``depth`` values ahead, by ``workers`` threads (each produces whole items: with 2
+    workers, frames t+1 and t+2 are prepared at the same time).
 
     Args:
-        produce: index -> value (e.g. a prepared frame); may raise.
+        produce: index -> value (e.g. a prepared frame); may raise. With ``workers > 1`` it
+            is called from several threads at once.
         indices: the indices, in the order :meth:`get` returns their values.
-        depth: values produced ahead (the queue's bound).
+        depth: values claimed ahead of :meth:`get` (in production or waiting), at least ``workers``.
         threaded: False runs ``produce`` inline in :meth:`get` (the sequential run).
+        workers: producing threads.
     """
 
     def __init__(self, produce: Callable[[int], Any], indices: Iterable[int], depth: int = DEFAULT_DEPTH, *,
-                 threaded: bool = True, name: str = "vio-depth-prefetch"):
+                 threaded: bool = True, workers: int = 1, name: str = "vio-depth-prefetch"):
         self._produce = produce
-        self._indices = iter(indices)
+        self._indices = list(indices)
         self._threaded = threaded
-        self._stop = threading.Event()
-        self._queue: queue.Queue = queue.Queue(maxsize=max(1, depth))
-        self._thread = None
+        self._depth = max(1, depth, workers)
+        self._cond = threading.Condition()
+        self._claimed = 0  # positions handed to a worker so far
+        self._delivered = 0  # positions returned by get()
+        self._ready: dict[int, tuple[Any, BaseException | None]] = {}
+        self._stop = False
+        self._threads = []
         if threaded:
-            self._thread = threading.Thread(target=self._work, name=name, daemon=True)
-            self._thread.start()
+            self._threads = [threading.Thread(target=self._work, name=f"{name}-{k}", daemon=True)
+                             for k in range(max(1, workers))]
+            for t in self._threads:
+                t.start()
 
     def _work(self) -> None:
-        for i in self._indices:
-            if self._stop.is_set():
-                return
+        while True:
+            with self._cond:
+                while (not self._stop and self._claimed < len(self._indices)
+                       and self._claimed >= self._delivered + self._depth):
+                    self._cond.wait()
+                if self._stop or self._claimed >= len(self._indices):
+                    return
+                pos = self._claimed
+                self._claimed += 1
             try:
-                item = (self._produce(i), None)
+                item = (self._produce(self._indices[pos]), None)
             except BaseException as exc:  # handed to the consumer, raised there
                 item = (None, exc)
-            while not self._stop.is_set():
-                try:
-                    self._queue.put(item, timeout=_POLL_S)
-                    break
-                except queue.Full:
-                    continue
-            if item[1] is not None:
-                return
+            with self._cond:
+                self._ready[pos] = item
+                if item[1] is not None:
+                    self._stop = True  # claim nothing more; earlier positions still complete
+                self._cond.notify_all()
 
     def get(self) -> Any:
         """The next value; re-raises what ``produce`` raised for it.
 
         Raises:
-            StopIteration: every index was delivered (inline mode), or the worker ended early.
+            StopIteration: every index was delivered.
         """
         if not self._threaded:
-            return self._produce(next(self._indices))
-        while True:
-            try:
-                value, exc = self._queue.get(timeout=_POLL_S)
-                break
-            except queue.Empty:
-                if not self._thread.is_alive() and self._queue.empty():
-                    raise StopIteration from None
+            if self._delivered >= len(self._indices):
+                raise StopIteration
+            self._delivered += 1
+            return self._produce(self._indices[self._delivered - 1])
+        with self._cond:
+            while self._delivered not in self._ready:
+                if self._delivered >= len(self._indices) or not any(t.is_alive() for t in self._threads):
+                    raise StopIteration
+                self._cond.wait(_POLL_S)
+            value, exc = self._ready.pop(self._delivered)
+            self._delivered += 1
+            self._cond.notify_all()
         if exc is not None:
             raise exc
         return value
 
     def close(self) -> None:
-        """Stop producing and wait for the worker (its current item is finished, then dropped)."""
-        self._stop.set()
-        if self._thread is not None:
-            while self._thread.is_alive():
-                try:
-                    self._queue.get_nowait()
-                except queue.Empty:
-                    self._thread.join(_POLL_S)
+        """Stop producing and wait for the workers (items in production are finished, then dropped)."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        for t in self._threads:
+            t.join()
+        self._ready.clear()
 
     def __enter__(self) -> "Prefetcher":
         return self

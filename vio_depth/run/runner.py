@@ -18,6 +18,7 @@ from matchers import Features
 from vio_core.errors import InputError
 
 from .._version import __version__
+from ..disparity import DisparityKind
 from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
 from ..export import RunExporter
 from ..frame import Frame
@@ -27,7 +28,7 @@ from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
-from .overlap import OrderedWriter, Prefetcher, opencv_threads, overlap_opencv_threads
+from .overlap import OrderedWriter, Prefetcher, opencv_threads, overlap_opencv_threads, prefetch_workers
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
@@ -72,8 +73,9 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         inputs: further paths the run reads (disparity folder, model, config file):
             ``out_dir`` may not be, lie in or contain them, nor the sequence folder.
         overlap: prepare the next frames (image, features, disparity) and write the outputs
-            in worker threads (:mod:`vio_depth.run.overlap`), with OpenCV's own thread pool
-            reduced to the cores left over (:func:`~vio_depth.run.overlap.overlap_opencv_threads`);
+            in worker threads (:mod:`vio_depth.run.overlap`: with SIFT, one prefetch thread per
+            core up to 4), with OpenCV's own thread pool reduced to the cores left over
+            (:func:`~vio_depth.run.overlap.overlap_opencv_threads`);
             False runs everything in this thread, one stage after the other. Both give
             byte-identical outputs.
 
@@ -105,8 +107,9 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary.resumed_frames = -1
         return summary
     try:
-        with opencv_threads(overlap_opencv_threads() if overlap else None):
-            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap)
+        workers = _prefetch_workers(pipeline) if overlap else 1
+        with opencv_threads(overlap_opencv_threads(workers) if overlap else None):
+            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers)
         folder.commit()
     except BaseException:
         folder.release()
@@ -114,6 +117,16 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     if summary.report:
         summary.report = str(folder.out / "report" / "index.html")
     return summary
+
+
+def _prefetch_workers(pipeline: Pipeline) -> int:
+    """Prefetch threads for ``pipeline``: several when its preparation may run concurrently
+    (a matcher whose ``extract`` is thread-safe, no model inference, which uses every core
+    by itself)."""
+    matcher = pipeline.matcher
+    concurrent = (matcher is None or getattr(matcher, "concurrent_extract", False)) and \
+        getattr(pipeline.disparity_source, "kind", None) != DisparityKind.MODEL
+    return prefetch_workers(concurrent)
 
 
 def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features | None = None) -> PreparedFrame:
@@ -127,7 +140,7 @@ def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features 
 
 
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
-         plan: ResumePlan, progress: bool | None, n: int, overlap: bool) -> RunSummary:
+         plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``."""
     out_dir = folder.staging
@@ -187,7 +200,8 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     features: dict[int, Features] = {}
     first_ok = None
     try:
-        with Prefetcher(lambda i: _prepare(sequence, pipeline, i), range(n), threaded=overlap) as frames:
+        with Prefetcher(lambda i: _prepare(sequence, pipeline, i), range(n), workers + 1, threaded=overlap,
+                        workers=workers) as frames:
             for i in bar:
                 prepared = frames.get()
                 res = pipeline.process_prepared(prepared)
@@ -200,7 +214,8 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
                 bar.set_postfix(depth=f"{with_depth}/{i + 1}")
         if backfill:
             t_backfill = time.perf_counter()
-            back = backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap, features=features)
+            back = backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap, features=features,
+                                           workers=workers)
             features.clear()
             for i, (frame, res) in back.items():
                 res.backfilled = True
@@ -244,7 +259,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
     summary.seconds = round(time.perf_counter() - t_start, 2)
     summary.timings = timing_summary(timing_frames, time.perf_counter() - t_start, overlap=overlap,
-                                     backfill_s=t_backfill)
+                                     backfill_s=t_backfill, prefetch_workers=workers)
     # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
     outputs.finish(header, records, summary, trajectory.trajectory)
     if settings.report:
@@ -264,7 +279,7 @@ def _keep_features(i: int, first_ok: int | None, buffer_size: int) -> bool:
 
 
 def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict, n: int, *,
-                            overlap: bool = False, features: dict | None = None) -> dict:
+                            overlap: bool = False, features: dict | None = None, workers: int = 1) -> dict:
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about
@@ -272,7 +287,7 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
     frames beyond the last leading frame, so each leading frame meets keyframes from its
     future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
-    :class:`FrameResult`); ``overlap`` prepares the frames in a worker thread;
+    :class:`FrameResult`); ``overlap`` prepares the frames in ``workers`` worker threads;
     ``features`` maps indices to features the forward pass extracted (not extracted again). Returns
     ``{index: (frame, FrameResult)}`` for the frames that now have depth.
     """
@@ -287,8 +302,8 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
     features = {} if features is None else features
-    with Prefetcher(lambda i: _prepare(sequence, backward, i, features.get(i)), range(last, -1, -1),
-                    threaded=overlap) as frames:
+    with Prefetcher(lambda i: _prepare(sequence, backward, i, features.get(i)), range(last, -1, -1), workers + 1,
+                    threaded=overlap, workers=workers) as frames:
         for i in range(last, -1, -1):
             prepared = frames.get()
             res = backward.process_prepared(prepared)

@@ -20,18 +20,20 @@ LANES = {"prefetch": ("load", "image", "features", "disparity"), "pipeline": ("p
          "writer": ("write", "evaluation")}
 
 
-def timing_summary(frame_timings: list[dict], wall_s: float, *, overlap: bool, backfill_s: float = 0.0) -> dict:
+def timing_summary(frame_timings: list[dict], wall_s: float, *, overlap: bool, backfill_s: float = 0.0,
+                   prefetch_workers: int = 1) -> dict:
     """The ``timings`` block of ``metrics.json``.
 
     Args:
         frame_timings: one ``{stage: seconds}`` per processed frame (the records' ``timings``).
         wall_s: seconds, the whole run's wall time (from the first frame to the last output).
         overlap: whether the stages overlapped in worker threads.
+        prefetch_workers: threads of the prefetch lane.
         backfill_s: seconds of wall time spent in the offline backward pass (its frames that
             gave depth carry their backward timings; the others are counted only here).
 
     Returns:
-        ``{"frames", "wall_s", "frames_per_second", "overlap", "backfill_s", "stages": {stage:
+        ``{"frames", "wall_s", "frames_per_second", "overlap", "prefetch_workers", "backfill_s", "stages": {stage:
         {"frames", "median_s", "p90_s", "total_s"}}, "lanes": {lane: total seconds}}``; a
         stage appears when at least one frame ran it.
     """
@@ -50,6 +52,7 @@ def timing_summary(frame_timings: list[dict], wall_s: float, *, overlap: bool, b
         "wall_s": round(float(wall_s), 3),
         "frames_per_second": round(n / wall_s, 3) if wall_s > 0 else None,
         "overlap": bool(overlap),
+        "prefetch_workers": int(prefetch_workers) if overlap else 0,
         "backfill_s": round(float(backfill_s), 3),
         "stages": stages,
         "lanes": lanes,

@@ -3,6 +3,7 @@ byte for byte, keeps memory bounded, surfaces a worker's error as the same one-l
 and an interruption leaves no half-written file and a resumable staging folder."""
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -22,44 +23,51 @@ VOLATILE = ("seconds", "timings")
 
 
 # --------------------------------------------------------------------------- the workers
-@pytest.mark.parametrize("threaded", [True, False])
-def test_prefetcher_keeps_order_and_stays_bounded(threaded):
+@pytest.mark.parametrize("threaded, workers", [(True, 1), (True, 2), (True, 4), (False, 1)])
+def test_prefetcher_keeps_order_and_stays_bounded(threaded, workers):
     produced = []
+    rng = np.random.default_rng(workers)
+    delays = rng.uniform(0, 0.004, 40)  # items finish out of order with several workers
 
     def produce(i):
+        time.sleep(delays[i])
         produced.append(i)
         return i * i
 
-    with Prefetcher(produce, range(20), depth=2, threaded=threaded) as p:
+    depth = workers + 1
+    with Prefetcher(produce, range(40), depth, threaded=threaded, workers=workers) as p:
         got = []
-        for _ in range(20):
+        for _ in range(40):
             time.sleep(0.002)
             got.append(p.get())
-            # at most depth queued + one being produced beyond what was consumed
-            assert len(produced) <= len(got) + 3
-    assert got == [i * i for i in range(20)]
+            assert len(produced) <= len(got) + depth  # never more than depth values ahead
+        with pytest.raises(StopIteration):
+            p.get()
+    assert got == [i * i for i in range(40)]
 
 
-def test_prefetcher_reraises_the_workers_exception_object():
+@pytest.mark.parametrize("workers", [1, 3])
+def test_prefetcher_reraises_the_workers_exception_object(workers):
     boom = InputError("frame 3: unreadable")
 
     def produce(i):
         if i == 3:
             raise boom
+        time.sleep(0.001 * (i % 2))
         return i
 
-    with Prefetcher(produce, range(10)) as p:
-        assert [p.get() for _ in range(3)] == [0, 1, 2]
+    with Prefetcher(produce, range(10), workers + 1, workers=workers) as p:
+        assert [p.get() for _ in range(3)] == [0, 1, 2]  # the values before the failure come first
         with pytest.raises(InputError) as info:
             p.get()
     assert info.value is boom
 
 
-def test_prefetcher_close_stops_a_blocked_worker():
-    p = Prefetcher(lambda i: i, range(10_000), depth=1)
+def test_prefetcher_close_stops_blocked_workers():
+    p = Prefetcher(lambda i: i, range(10_000), depth=2, workers=2)
     assert p.get() == 0
     p.close()
-    assert not any(t.name == "vio-depth-prefetch" and t.is_alive() for t in threading.enumerate())
+    assert not any(t.name.startswith("vio-depth-prefetch") and t.is_alive() for t in threading.enumerate())
 
 
 def test_writer_runs_in_order_and_skips_everything_after_a_failure():
@@ -136,6 +144,7 @@ def test_overlapped_run_equals_the_sequential_run_byte_for_byte(mini_street, tmp
     assert _records(ovl_out)[1][0].get("backfilled") is True  # the backward pass ran in both
     t = json.loads((ovl_out / "metrics.json").read_text())["timings"]
     assert t["overlap"] is True and t["frames"] == 12 and t["frames_per_second"] > 0
+    assert t["prefetch_workers"] == min(os.cpu_count(), 4)  # SIFT: one prefetch thread per core
     assert {"features", "matching", "triangulation", "write", "evaluation"} <= set(t["stages"])
     assert json.loads((seq_out / "metrics.json").read_text())["timings"]["overlap"] is False
 
@@ -230,9 +239,11 @@ def test_interruption_leaves_complete_files_and_a_resumable_folder(mini_street, 
 def test_opencv_threads_leave_the_cores_of_the_other_lanes_and_are_restored():
     import cv2
 
-    from vio_depth.run.overlap import opencv_threads, overlap_opencv_threads
+    from vio_depth.run.overlap import opencv_threads, overlap_opencv_threads, prefetch_workers
 
-    assert [overlap_opencv_threads(c) for c in (1, 2, 3, 16)] == [1, 1, 1, 14]
+    assert [prefetch_workers(True, c) for c in (1, 2, 3, 16)] == [1, 2, 3, 4]
+    assert [prefetch_workers(False, c) for c in (1, 2, 16)] == [1, 1, 1]
+    assert [overlap_opencv_threads(prefetch_workers(True, c), c) for c in (1, 2, 3, 16)] == [1, 1, 1, 10]
     before = cv2.getNumThreads()
     with opencv_threads(1):
         assert cv2.getNumThreads() == 1
