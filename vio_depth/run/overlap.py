@@ -19,7 +19,10 @@ disparity and features back), and SIFT extraction of frame t+1 overlapping the m
 and fit of frame t is what makes the overlap pay (docs/benchmarks.md, "Throughput").
 While a run overlaps, OpenCV's own thread pool is reduced to the cores the other lanes
 leave over (:func:`overlap_opencv_threads`: 1 on 2 cores), since on 2 shared cores its
-second thread slowed SIFT down.
+second thread slowed SIFT down, and the BLAS pool (numpy's OpenBLAS: descriptor matching,
+fits) to one thread (:func:`blas_threads`): its idle threads spin while waiting for work,
+and beside the prefetch threads that cost a quarter of the run's CPU time
+(docs/benchmarks.md, "Throughput").
 
 Guarantees:
 
@@ -47,6 +50,7 @@ import threading
 from typing import Any, Callable, Iterable, Iterator
 
 import cv2
+from threadpoolctl import threadpool_limits
 
 #: items a worker may run ahead of the pipeline (prefetched frames, results waiting to be written)
 DEFAULT_DEPTH = 2
@@ -91,6 +95,22 @@ def opencv_threads(n: int | None) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(before)
+
+
+@contextlib.contextmanager
+def blas_threads(n: int | None) -> Iterator[None]:
+    """The BLAS libraries' thread pools (OpenBLAS, MKL: numpy's matrix products) limited to
+    ``n`` threads for the duration (None: unchanged), restored afterwards.
+
+    A matrix product splits its output between threads; each element is the same dot
+    product whatever the thread count, so results do not change (the overlapped run's
+    outputs equal the sequential run's byte for byte: tests/vio_depth/run/test_overlap.py).
+    """
+    if n is None:
+        yield
+        return
+    with threadpool_limits(limits=int(n), user_api="blas"):
+        yield
 
 
 class Prefetcher:

@@ -28,7 +28,8 @@ from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
-from .overlap import OrderedWriter, Prefetcher, opencv_threads, overlap_opencv_threads, prefetch_workers
+from .overlap import (OrderedWriter, Prefetcher, blas_threads, opencv_threads, overlap_opencv_threads,
+                      prefetch_workers)
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
@@ -108,7 +109,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         return summary
     try:
         workers = _prefetch_workers(pipeline) if overlap else 1
-        with opencv_threads(overlap_opencv_threads(workers) if overlap else None):
+        with opencv_threads(overlap_opencv_threads(workers) if overlap else None), \
+                blas_threads(1 if overlap else None):
             summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers)
         folder.commit()
     except BaseException:

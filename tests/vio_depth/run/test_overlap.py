@@ -250,3 +250,20 @@ def test_opencv_threads_leave_the_cores_of_the_other_lanes_and_are_restored():
     assert cv2.getNumThreads() == before
     with opencv_threads(None):
         assert cv2.getNumThreads() == before
+
+
+def test_blas_threads_are_limited_for_the_duration_and_restored():
+    from threadpoolctl import threadpool_info
+
+    from vio_depth.run.overlap import blas_threads
+
+    def counts():
+        return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+    before = counts()
+    assert before, "numpy is linked against a BLAS library"
+    with blas_threads(1):
+        assert counts() == [1] * len(before)
+    assert counts() == before
+    with blas_threads(None):
+        assert counts() == before
