@@ -7,7 +7,9 @@ times, best of each:
 * ``sequential``: every stage in the calling thread (``overlap=False``); also with
   ``cv2.setNumThreads(1)``;
 * ``threads``: prefetch (decode, SIFT, disparity) in one thread per core (2), writer in a
-  thread, OpenCV's pool reduced to the cores left over (1 on 2 cores; the default);
+  thread, OpenCV's pool reduced to the cores left over (1 on 2 cores) and the BLAS pool
+  to 1 thread (the default);
+* ``threads, BLAS pool unlimited``: the same with numpy's BLAS at its own thread count;
 * ``threads, 1 prefetch thread``: the same with a single prefetch thread;
 * ``threads, 1 prefetch thread, cv2 2 threads``: that with OpenCV's 2 threads;
 * ``threads, SIFT in pipeline``: the prefetch threads decode and read the disparity only;
@@ -44,7 +46,7 @@ import vio_depth.run.runner as runner  # noqa: E402
 from vio_depth import Pipeline, PipelineSettings, open_sequence, run_sequence  # noqa: E402
 from vio_depth.pipeline import PreparedFrame  # noqa: E402
 from vio_depth.run import RunSettings  # noqa: E402
-from vio_depth.run.overlap import Prefetcher, overlap_opencv_threads, prefetch_workers  # noqa: E402
+from vio_depth.run.overlap import Prefetcher, blas_threads, overlap_opencv_threads, prefetch_workers  # noqa: E402
 
 # ----------------------------------------------------------------------------- SIFT in the pipeline lane
 
@@ -140,6 +142,8 @@ def run_variant(variant: str, view: Path, out: Path) -> float:
         runner.prefetch_workers = lambda concurrent: 1
     if variant.endswith("cv2 2 threads"):
         runner.overlap_opencv_threads = lambda workers: 2
+    if variant == "threads, BLAS pool unlimited":
+        runner.blas_threads = lambda n: blas_threads(None)
     if variant == "process prefetch":
         ProcessPrefetcher.context = {"sequence": seq, "settings": settings}
         runner.Prefetcher = ProcessPrefetcher
@@ -152,10 +156,12 @@ def run_variant(variant: str, view: Path, out: Path) -> float:
         runner.Prefetcher = Prefetcher
         runner.overlap_opencv_threads = overlap_opencv_threads
         runner.prefetch_workers = prefetch_workers
+        runner.blas_threads = blas_threads
         cv2.setNumThreads(cv_threads)
 
 
-VARIANTS = ("sequential", "sequential, cv2 1 thread", "threads", "threads, 1 prefetch thread",
+VARIANTS = ("sequential", "sequential, cv2 1 thread", "threads", "threads, BLAS pool unlimited",
+            "threads, 1 prefetch thread",
             "threads, 1 prefetch thread, cv2 2 threads", "threads, SIFT in pipeline", "process prefetch")
 
 
@@ -181,7 +187,7 @@ def main(argv=None) -> int:
     base = best.get("sequential")
     for v in args.variants:
         rel = f"   {base / best[v]:.2f} x sequential" if base else ""
-        print(f"  {v:28s} {args.frames / best[v]:6.2f} frames/s{rel}")
+        print(f"  {v:42s} {args.frames / best[v]:6.2f} frames/s{rel}")
     print("  load average (1 min) before/after each repeat: " + " ".join(f"{x:.2f}" for x in loads))
     return 0
 
