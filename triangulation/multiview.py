@@ -1,0 +1,446 @@
+"""N-view triangulation of feature tracks with known metric poses and their uncertainty.
+
+Observations come flat, one row per (track, view) pair, so that every track of a window
+is triangulated in one batch (no per-track Python loop):
+
+* ``track: (M,)`` int, the track of each observation (any non-negative ids);
+* ``view: (M,)`` int, index into the per-view poses ``T_w_c: (V, 4, 4)`` (camera-to-world,
+  metres) and cameras;
+* ``uv: (M, 2)`` raw (distorted) pixels.
+
+Method, per track, all batched numpy:
+
+1. raw pixels are undistorted to ideal pinhole pixels (:meth:`Camera.undistort_points`);
+2. **linear N-view** initialisation: the point nearest to all viewing rays in the least
+   squares sense, ``sum_i |(I - f_i f_i^T)(X - c_i)|^2`` (``f_i`` unit ray, ``c_i`` camera
+   centre), solved once unweighted and once with weights ``1 / |X - c_i|^2`` (which makes
+   the cost the sum of squared ray angles, a proxy of the reprojection error);
+3. **Gauss-Newton on the reprojection error**, each observation whitened by its 2x2
+   covariance ``S_i = sigma_px^2 I + J_pose,i Sigma_i J_pose,i^T``: the pixel noise plus the
+   image motion that the view's pose uncertainty ``Sigma_i`` (6x6) can cause. Steps that do
+   not lower a track's cost are rejected;
+4. **outlier rounds**: an observation whose whitened residual exceeds
+   ``max_residual_sigmas`` is dropped (the worst one per track per round) and the track
+   re-solved; a track needs two inlier views. The gate therefore widens by itself where
+   the poses are uncertain, instead of a fixed pixel threshold;
+5. covariance ``Sigma_X = H^-1`` (``H = sum J_X^T S^-1 J_X`` over inliers), and for every
+   observation the depth (camera z) in its own view with a first-order sigma that keeps
+   the correlation between the point and that view's pose (the point was estimated from
+   it: a common error partly cancels)::
+
+       var(z_i) = a^T H^-1 a + b^T Sigma_i b + 2 a^T H^-1 J_X,i^T S_i^-1 J_pose,i Sigma_i b
+
+   with ``a = dz_i/dX`` and ``b = dz_i/dxi_i``.
+
+Pose errors of different views are treated as independent (the caller passes marginal
+covariances); pose perturbations follow GTSAM: ``T_w_c * Exp(xi)``, ``xi = (rotation rad,
+translation m)`` in the camera frame.
+
+Statuses, first failing one wins:
+
+==============  ========================================================================
+TOO_FEW_VIEWS   fewer than two observations
+LOW_PARALLAX    numerically degenerate: the rays are (nearly) parallel, the normal
+                equations are singular, or the depth uncertainty is not finite
+REPROJECTION    fewer than two observations left inside the residual gate
+BEHIND_CAMERA   the point is not in front of every inlier view
+DEPTH_RANGE     depth in an inlier view outside [``min_depth_m``, ``max_depth_m``]
+UNCERTAIN       predicted relative depth sigma ``sigma_z / z`` above
+                ``max_relative_sigma`` in some inlier view -- the honest replacement of a
+                parallax-angle threshold: it accounts for baseline, depth, position in
+                the image, pixel noise and pose uncertainty together
+==============  ========================================================================
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from vio_core.camera import Camera
+from vio_core.checks import check_array
+from vio_core.errors import InputError, SettingsError
+
+# numerical floor on the largest angle between a track's rays (degrees): below it the
+# geometry is treated as degenerate whatever the stated uncertainties say
+_MIN_ANGLE_DEG = 1e-3
+_GN_ITERATIONS = 6
+_EYE3 = np.eye(3)
+
+
+class TrackStatus(enum.IntEnum):
+    """Outcome of one track (module docstring: order of the checks)."""
+
+    VALID = 0
+    TOO_FEW_VIEWS = 1
+    LOW_PARALLAX = 2
+    REPROJECTION = 3
+    BEHIND_CAMERA = 4
+    DEPTH_RANGE = 5
+    UNCERTAIN = 6
+
+
+@dataclass(frozen=True)
+class MultiviewSettings:
+    """Thresholds of :func:`triangulate_tracks`.
+
+    Attributes:
+        pixel_sigma_px: 1-sigma keypoint noise in ideal pixels (both axes).
+        max_residual_sigmas: an observation is an inlier when its whitened reprojection
+            residual ``sqrt(r^T S^-1 r)`` is at most this (3.0 keeps 99 % of Gaussian
+            2-d residuals).
+        outlier_rounds: rounds of dropping the worst outlier per track.
+        max_relative_sigma: largest predicted ``sigma_z / z`` of a VALID track in any of
+            its inlier views. 0.1 keeps points whose depth is known to 10 % (the
+            rescaler weights them by their sigma anyway); it is unit-free, so the same
+            value serves a room and a street.
+        min_depth_m / max_depth_m: accepted depth range in every inlier view, metres.
+    """
+
+    pixel_sigma_px: float = 1.0
+    max_residual_sigmas: float = 3.0
+    outlier_rounds: int = 3
+    max_relative_sigma: float = 0.1
+    min_depth_m: float = 0.05
+    max_depth_m: float = 1000.0
+
+    def __post_init__(self):
+        if not self.pixel_sigma_px > 0:
+            raise SettingsError(f"multiview: pixel_sigma_px must be > 0, got {self.pixel_sigma_px}")
+        if not self.max_residual_sigmas > 0 or not self.max_relative_sigma > 0:
+            raise SettingsError("multiview: max_residual_sigmas and max_relative_sigma must be > 0")
+        if self.outlier_rounds < 0:
+            raise SettingsError(f"multiview: outlier_rounds must be >= 0, got {self.outlier_rounds}")
+        if not 0.0 <= self.min_depth_m < self.max_depth_m:
+            raise SettingsError(f"multiview: need 0 <= min_depth_m < max_depth_m, got "
+                                f"{self.min_depth_m}, {self.max_depth_m}")
+
+
+@dataclass(frozen=True)
+class MultiviewPoints:
+    """Triangulated tracks (rows ``T``) and their observations (rows ``M``, input order).
+
+    Attributes:
+        track_ids: (T,) int, the distinct input track ids, sorted.
+        points_w: (T, 3) metres, world points (NaN where undefined).
+        covariance_w: (T, 3, 3) square metres, covariance of each point (NaN where undefined).
+        status: (T,) uint8 :class:`TrackStatus`.
+        n_inliers: (T,) int, inlier observations.
+        max_angle_deg: (T,) degrees, largest angle between two inlier rays.
+        obs_track: (M,) int, row in the track arrays of each observation.
+        inlier: (M,) bool, observation used in the estimate.
+        residual_px: (M,) ideal pixels, reprojection error of each observation.
+        depth: (M,) metres, camera z of the point in the observation's view.
+        sigma_depth: (M,) metres, first-order 1-sigma of that depth (module docstring).
+        relative_sigma: (T,) largest ``sigma_depth / depth`` over the track's inlier views
+            (inf where undefined).
+    """
+
+    track_ids: np.ndarray
+    points_w: np.ndarray
+    covariance_w: np.ndarray
+    status: np.ndarray
+    n_inliers: np.ndarray
+    max_angle_deg: np.ndarray
+    obs_track: np.ndarray
+    inlier: np.ndarray
+    residual_px: np.ndarray
+    depth: np.ndarray
+    sigma_depth: np.ndarray
+    relative_sigma: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(T,) bool: track status is VALID."""
+        return self.status == TrackStatus.VALID
+
+    def status_counts(self) -> dict[str, int]:
+        """Tracks per status, e.g. ``{"valid": 812, "uncertain": 95, ...}`` (all statuses)."""
+        counts = np.bincount(self.status.astype(np.int64), minlength=len(TrackStatus))
+        return {s.name.lower(): int(counts[s.value]) for s in TrackStatus}
+
+
+def _rotation_blocks(T_w_c: np.ndarray):
+    R_wc = T_w_c[:, :3, :3]
+    c_w = T_w_c[:, :3, 3]
+    return np.transpose(R_wc, (0, 2, 1)), c_w
+
+
+def _skew_batch(p: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices of ``p: (N, 3)``."""
+    z = np.zeros(len(p))
+    return np.stack([np.stack([z, -p[:, 2], p[:, 1]], 1),
+                     np.stack([p[:, 2], z, -p[:, 0]], 1),
+                     np.stack([-p[:, 1], p[:, 0], z], 1)], 1)
+
+
+def _projection_jacobian(p_c: np.ndarray, fx: np.ndarray, fy: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) d(ideal pixel)/d(point in camera) at ``p_c: (N, 3)``."""
+    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
+    iz = 1.0 / z
+    J = np.zeros((len(p_c), 2, 3))
+    J[:, 0, 0] = fx * iz
+    J[:, 0, 2] = -fx * x * iz * iz
+    J[:, 1, 1] = fy * iz
+    J[:, 1, 2] = -fy * y * iz * iz
+    return J
+
+
+def pose_jacobian(p_c) -> np.ndarray:
+    """(N, 3, 6) d(point in camera)/d xi for ``T_w_c * Exp(xi)``, at ``p_c: (N, 3)`` metres.
+
+    ``xi = (rotation rad, translation m)`` in the camera frame (GTSAM's ``Pose3``
+    retraction): the camera point moves by ``p_c x omega - nu`` to first order.
+    """
+    p_c = check_array("p_c", p_c, (None, 3))
+    J = np.zeros((len(p_c), 3, 6))
+    J[:, :, :3] = _skew_batch(p_c)
+    J[:, :, 3:] = -_EYE3
+    return J
+
+
+def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    out = np.zeros((n,) + values.shape[1:])
+    np.add.at(out, index, values)
+    return out
+
+
+def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        det = np.linalg.det(np.nan_to_num(A))
+    scale = np.einsum("nii->n", np.nan_to_num(A)) ** 3
+    ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
+    x = np.full(b.shape, np.nan)
+    if ok.any():
+        x[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+    return x, ok
+
+
+def _linear_points(t, rays_w, centres, w, n_tracks):
+    """Least-squares nearest point to weighted rays: (T, 3) and (T,) bool solvable."""
+    P = _EYE3[None] - rays_w[:, :, None] * rays_w[:, None, :]
+    A = _sum_by(t, w[:, None, None] * P, n_tracks)
+    b = _sum_by(t, w[:, None] * np.einsum("nij,nj->ni", P, centres), n_tracks)
+    return _solve3(A, b)
+
+
+def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSettings = MultiviewSettings(),
+                       pose_covariance=None) -> MultiviewPoints:
+    """Triangulate feature tracks seen in several views with known metric poses.
+
+    Args:
+        track: (M,) int >= 0, track id of each observation.
+        view: (M,) int in [0, V), view of each observation (index into ``T_w_c``).
+        uv: (M, 2) raw (distorted) pixels of each observation.
+        cameras: one :class:`Camera` for all views, or a sequence of V cameras.
+        T_w_c: (V, 4, 4) camera-to-world poses, metres.
+        settings: :class:`MultiviewSettings`.
+        pose_covariance: (V, 6, 6) marginal covariance of each view's pose (right
+            perturbation ``T_w_c * Exp(xi)``, rotation rad first, then metres), or None
+            (exact poses).
+
+    Returns:
+        :class:`MultiviewPoints`. Never raises for degenerate geometry: those are statuses.
+
+    Raises:
+        ShapeError / InputError: malformed inputs (shapes, a view index out of range,
+            two observations of one track in the same view).
+    """
+    track = check_array("track", track, (None,), dtype="int").astype(np.int64)
+    m = len(track)
+    view = check_array("view", view, (m,), dtype="int").astype(np.int64)
+    uv = check_array("uv", uv, (m, 2), finite=True).astype(np.float64)
+    T_w_c = check_array("T_w_c", T_w_c, (None, 4, 4), finite=True)
+    n_views = len(T_w_c)
+    cams = [cameras] * n_views if isinstance(cameras, Camera) else list(cameras)
+    if len(cams) != n_views or not all(isinstance(c, Camera) for c in cams):
+        raise InputError(f"triangulate_tracks: need one Camera or {n_views} cameras")
+    cov = None if pose_covariance is None else check_array("pose_covariance", pose_covariance,
+                                                            (n_views, 6, 6), finite=True)
+    if m and (view.min() < 0 or view.max() >= n_views or track.min() < 0):
+        raise InputError("triangulate_tracks: view indices must be in [0, V) and track ids >= 0")
+    track_ids, t = np.unique(track, return_inverse=True)
+    n_tracks = len(track_ids)
+    if m and len(np.unique(t * n_views + view)) != m:
+        raise InputError("triangulate_tracks: a track has two observations in the same view")
+
+    s = settings
+    # ideal pixels and per-observation camera constants
+    ideal = np.empty_like(uv)
+    fx, fy, cx, cy = (np.empty(m) for _ in range(4))
+    for v in np.unique(view) if m else []:
+        sel = view == v
+        cam = cams[v]
+        ideal[sel] = cam.undistort_points(uv[sel])
+        fx[sel], fy[sel], cx[sel], cy[sel] = cam.fx, cam.fy, cam.cx, cam.cy
+    R_cw_all, c_all = _rotation_blocks(T_w_c)
+    R_cw, centres = R_cw_all[view], c_all[view]
+    rays_c = np.column_stack([(ideal[:, 0] - cx) / fx, (ideal[:, 1] - cy) / fy, np.ones(m)])
+    rays_w = np.einsum("nji,nj->ni", R_cw, rays_c)  # R_wc @ ray
+    rays_w /= np.linalg.norm(rays_w, axis=1, keepdims=True)
+
+    n_obs = np.bincount(t, minlength=n_tracks)
+    inlier = n_obs[t] >= 2
+    status = np.full(n_tracks, TrackStatus.VALID, np.uint8)
+    status[n_obs < 2] = TrackStatus.TOO_FEW_VIEWS
+
+    def mark(bad, code):
+        status[(status == TrackStatus.VALID) & bad] = code
+
+    # --- linear initialisation (unweighted, then angular weights)
+    X, ok = _linear_points(t, rays_w, centres, inlier.astype(float), n_tracks)
+    dist2 = np.sum((X[t] - centres) ** 2, axis=1)
+    w = np.where(inlier & np.isfinite(dist2) & (dist2 > 0), 1.0 / np.where(dist2 > 0, dist2, 1.0), 0.0)
+    X2, ok2 = _linear_points(t, rays_w, centres, w, n_tracks)
+    X = np.where(ok2[:, None], X2, X)
+    mark(~(ok | ok2), TrackStatus.LOW_PARALLAX)
+    # rays that meet behind every camera: no point in front can explain them
+    z_lin = np.einsum("nj,nj->n", X[t] - centres, R_cw[:, 2, :])
+    mark(_sum_by(t, (inlier & (z_lin > 0)).astype(float), n_tracks) == 0, TrackStatus.BEHIND_CAMERA)
+
+    # whitening of each observation: pixel noise + image motion from pose uncertainty
+    def obs_info(p_c):
+        Jp = _projection_jacobian(p_c, fx, fy)
+        S = np.broadcast_to(s.pixel_sigma_px**2 * np.eye(2), (m, 2, 2)).copy()
+        J_pose = None
+        if cov is not None:
+            J_pose = Jp @ pose_jacobian(p_c)  # (M, 2, 6) pixels per pose tangent unit
+            S = S + J_pose @ cov[view] @ np.transpose(J_pose, (0, 2, 1))
+        return Jp, np.linalg.inv(S), J_pose
+
+    def residuals(X):
+        p_c = np.einsum("nij,nj->ni", R_cw, X[t] - centres)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            proj = np.column_stack([fx * p_c[:, 0] / p_c[:, 2] + cx, fy * p_c[:, 1] / p_c[:, 2] + cy])
+        return p_c, proj - ideal
+
+    def track_cost(r, S_inv, use):
+        e = np.einsum("ni,nij,nj->n", r, S_inv, r)
+        return _sum_by(t, np.where(use & np.isfinite(e), e, 0.0), n_tracks), e
+
+    active = status == TrackStatus.VALID
+    for round_ in range(s.outlier_rounds + 1):
+        # --- Gauss-Newton on the whitened reprojection error
+        for _ in range(_GN_ITERATIONS):
+            p_c, r = residuals(X)
+            Jp, S_inv, _ = obs_info(p_c)
+            use = inlier & active[t] & (p_c[:, 2] > 0)
+            J = Jp @ R_cw  # (M, 2, 3) d pixel / d X
+            JtS = np.transpose(J, (0, 2, 1)) @ S_inv
+            wts = use.astype(float)
+            H = _sum_by(t, wts[:, None, None] * (JtS @ J), n_tracks)
+            g = _sum_by(t, wts[:, None] * np.einsum("nij,nj->ni", JtS, np.nan_to_num(r)), n_tracks)
+            step, solvable = _solve3(H, -g)
+            cost0, _ = track_cost(r, S_inv, use)
+            X_new = np.where((solvable & active)[:, None], X + np.nan_to_num(step), X)
+            p_new, r_new = residuals(X_new)
+            cost1, _ = track_cost(r_new, S_inv, use & (p_new[:, 2] > 0))
+            better = solvable & active & (cost1 <= cost0) & np.all(np.isfinite(X_new), axis=1)
+            X = np.where(better[:, None], X_new, X)
+            if not better.any() or np.max(np.abs(np.where(better[:, None], step, 0.0))) < 1e-10:
+                break
+        if round_ == s.outlier_rounds:
+            break
+        # --- drop the worst outlier of each track that has one
+        p_c, r = residuals(X)
+        _, S_inv, _ = obs_info(p_c)
+        e = np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6))
+        e = np.where(p_c[:, 2] > 0, e, np.inf)
+        bad = inlier & active[t] & (e > s.max_residual_sigmas**2)
+        if not bad.any():
+            break
+        worst = np.full(n_tracks, -1.0)
+        np.maximum.at(worst, t[bad], e[bad])
+        drop = bad & (e == worst[t])
+        inlier &= ~drop
+        n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks)
+        mark(active & (n_in < 2), TrackStatus.REPROJECTION)
+        active = status == TrackStatus.VALID
+
+    # --- final residuals, gate, covariance, per-observation depth and sigma
+    p_c, r = residuals(X)
+    Jp, S_inv, J_pose = obs_info(p_c)
+    e = np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6))
+    behind = p_c[:, 2] <= 0
+    inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
+    n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
+    mark(n_in < 2, TrackStatus.REPROJECTION)
+
+    J = Jp @ R_cw
+    JtS = np.transpose(J, (0, 2, 1)) @ S_inv
+    H = _sum_by(t, inlier[:, None, None] * (JtS @ J), n_tracks)
+    eye = np.broadcast_to(_EYE3, H.shape)
+    Hinv_cols = [_solve3(H, np.ascontiguousarray(eye[:, :, k]))[0] for k in range(3)]
+    cov_w = np.stack(Hinv_cols, axis=2)
+
+    # largest angle between inlier rays (the pair with the extreme directions)
+    mean_ray = _sum_by(t, np.where(inlier[:, None], rays_w, 0.0), n_tracks)
+    mean_ray /= np.maximum(np.linalg.norm(mean_ray, axis=1, keepdims=True), 1e-300)
+    ang = np.degrees(np.arccos(np.clip(np.sum(rays_w * mean_ray[t], 1), -1.0, 1.0)))
+    spread = np.zeros(n_tracks)
+    np.maximum.at(spread, t, np.where(inlier, ang, 0.0))
+    max_angle = 2.0 * spread  # within a factor of 2 of the largest pairwise angle
+    mark(~np.all(np.isfinite(cov_w), axis=(1, 2)) | (max_angle < _MIN_ANGLE_DEG), TrackStatus.LOW_PARALLAX)
+
+    depth = p_c[:, 2]
+    a = R_cw[:, 2, :]  # dz/dX
+    C = cov_w[t]
+    var = np.einsum("ni,nij,nj->n", a, np.nan_to_num(C), a)
+    if cov is not None:
+        b = pose_jacobian(p_c)[:, 2, :]  # dz/dxi
+        Sv = cov[view]
+        var = var + np.einsum("ni,nij,nj->n", b, Sv, b)
+        # cross term: the point was estimated from this view's (uncertain) pose
+        A = np.nan_to_num(C) @ JtS  # (M, 3, 2)
+        cross = np.einsum("ni,nij,njk,nkl,nl->n", a, A, J_pose, Sv, b)
+        var = var + 2.0 * np.where(inlier, cross, 0.0)
+    sigma = np.sqrt(np.maximum(var, 0.0))
+
+    front = _sum_by(t, (inlier & ~(depth > 0)).astype(float), n_tracks) == 0
+    mark(~front, TrackStatus.BEHIND_CAMERA)
+    in_range = (depth >= s.min_depth_m) & (depth <= s.max_depth_m)
+    mark(_sum_by(t, (inlier & ~in_range).astype(float), n_tracks) > 0, TrackStatus.DEPTH_RANGE)
+    rel = np.where(inlier, sigma / np.where(depth > 0, depth, np.nan), 0.0)
+    worst_rel = np.zeros(n_tracks)
+    np.maximum.at(worst_rel, t, np.nan_to_num(rel, nan=np.inf))
+    worst_rel[n_in < 2] = np.inf
+    mark(~(worst_rel <= s.max_relative_sigma), TrackStatus.UNCERTAIN)
+
+    undefined = np.isin(status, (TrackStatus.TOO_FEW_VIEWS, TrackStatus.LOW_PARALLAX))
+    X = np.where(undefined[:, None], np.nan, X)
+    cov_w = np.where(undefined[:, None, None], np.nan, cov_w)
+    return MultiviewPoints(track_ids, X, cov_w, status, n_in, max_angle, t, inlier,
+                           np.linalg.norm(r, axis=1), depth, sigma, worst_rel)
+
+
+def depth_in_view(points_w, covariance_w, T_w_c, pose_covariance=None) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and its 1-sigma of world points in a view whose pose is independent of them.
+
+    Use it for a view that did not take part in estimating the points (a non-keyframe);
+    for the observing views use :attr:`MultiviewPoints.sigma_depth`, which keeps the
+    correlation.
+
+    Args:
+        points_w: (N, 3) metres.
+        covariance_w: (N, 3, 3) square metres.
+        T_w_c: (4, 4) camera-to-world pose of the view, metres.
+        pose_covariance: (6, 6) covariance of that pose (``T_w_c * Exp(xi)``) or None.
+
+    Returns:
+        depth: (N,) metres (camera z); sigma: (N,) metres.
+    """
+    P = check_array("points_w", points_w, (None, 3))
+    C = check_array("covariance_w", covariance_w, (len(P), 3, 3))
+    T = check_array("T_w_c", T_w_c, (4, 4), finite=True)
+    R_cw = T[:3, :3].T
+    p_c = (P - T[:3, 3]) @ R_cw.T
+    a = np.broadcast_to(R_cw[2], P.shape)
+    var = np.einsum("ni,nij,nj->n", a, C, a)
+    if pose_covariance is not None:
+        S = check_array("pose_covariance", pose_covariance, (6, 6), finite=True)
+        b = pose_jacobian(p_c)[:, 2, :]
+        var = var + np.einsum("ni,ij,nj->n", b, S, b)
+    return p_c[:, 2], np.sqrt(np.maximum(var, 0.0))

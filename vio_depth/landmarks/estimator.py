@@ -1,0 +1,149 @@
+"""Per-frame driver of the landmark window: matching, keyframe choice, query.
+
+One :meth:`LandmarkEstimator.process` call per frame, in order, with the frame's
+features (extracted once by the caller, as the pipeline does):
+
+1. the frame is matched with the newest ``match_keyframes`` keyframes of the window
+   (their features are kept while they are in the window);
+2. its landmark points are queried (:meth:`LandmarkWindow.query`);
+3. it becomes a keyframe when the two-view geometry with the newest keyframe predicts a
+   median relative depth sigma below ``keyframe_relative_sigma`` (enough new parallax,
+   measured against pixel and pose uncertainty: no scene-scale threshold), when fewer
+   than ``keyframe_min_tracked_fraction`` of the newest keyframe's landmarks are found
+   again, or after ``max_keyframe_gap`` frames; a keyframe is inserted, the window
+   refined, and the frame's points re-read from the refined window.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from triangulation.multiview import TrackStatus, triangulate_tracks
+from vio_core.camera import Camera
+from vio_core.checks import check_transform
+from .settings import LandmarkSettings
+from .tracks import FrameMatches
+from .window import KeyframeInput, LandmarkPoints, LandmarkWindow, MotionFactorSource, WindowUpdate
+
+
+@dataclass(frozen=True)
+class FrameLandmarks:
+    """Result of :meth:`LandmarkEstimator.process` for one frame.
+
+    Attributes:
+        points: :class:`LandmarkPoints` for the rescaler.
+        keyframe: whether the frame became a keyframe.
+        keyframe_reason: why it did (or "").
+        matches: matches with the window's keyframes (summed).
+        pair_relative_sigma: median predicted relative depth sigma of its two-view
+            matches with the newest keyframe (inf when undefined).
+        update: the window update when it became a keyframe.
+    """
+
+    points: LandmarkPoints
+    keyframe: bool
+    keyframe_reason: str
+    matches: int
+    pair_relative_sigma: float
+    update: WindowUpdate | None = None
+
+
+class LandmarkEstimator:
+    """Landmark window + matcher + keyframe policy (see the module docstring).
+
+    Args:
+        settings: :class:`LandmarkSettings`.
+        matcher: a ``matchers`` matcher (``match(features_a, features_b) -> Matches``).
+        motion_factors: optional :class:`MotionFactorSource` (IMU) for the window.
+    """
+
+    def __init__(self, settings: LandmarkSettings, matcher, motion_factors: MotionFactorSource | None = None):
+        self.settings = settings
+        self.matcher = matcher
+        self.window = LandmarkWindow(settings, motion_factors)
+        self._features: dict[int, object] = {}
+        self._last_tracked: int | None = None
+
+    def reset(self) -> None:
+        """Forget everything (a new window)."""
+        self.__init__(self.settings, self.matcher, self.window.motion_factors)
+
+    def _pair_relative_sigma(self, newest: int, camera: Camera, points: LandmarkPoints, m: FrameMatches) -> float:
+        """Median predicted sigma_z/z of two-view matches with the newest keyframe, at the
+        frame's (refined) pose and its covariance relative to that keyframe."""
+        if len(m) < 5 or points.T_w_c is None or points.covariance is None:
+            return float("inf")
+        w = self.window
+        kf = w.keyframe(newest)
+        T_kf, T_cur = w.pose(newest), points.T_w_c
+        # the pair's rotation is measured by its own matches to about sigma_px / (f sqrt(n))
+        # radians whatever the prior says; the translation keeps its (prior or refined) sigma
+        C_cur = points.covariance.copy()
+        rot_var = (self.settings.multiview.pixel_sigma_px / camera.fx) ** 2 / max(len(m), 1)
+        C_cur[:3, :] = C_cur[:, :3] = 0.0  # drop rotation and its cross terms
+        C_cur[:3, :3] = np.minimum(np.diag(np.diag(points.covariance[:3, :3])), rot_var * np.eye(3))
+        C = np.stack([1e-12 * np.eye(6), C_cur])
+        n = len(m)
+        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe], self._current_kp[m.idx_frame]])
+        res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf.camera, camera],
+                                 np.stack([T_kf, T_cur]), self.settings.multiview, C)
+        ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))
+        if ok.sum() < 5:
+            return float("inf")
+        d = res.depth[n:][ok[res.obs_track[n:]]]
+        s = res.sigma_depth[n:][ok[res.obs_track[n:]]]
+        return float(np.median(s / np.maximum(d, 1e-12)))
+
+    def process(self, frame_id: int, timestamp: float, camera: Camera, T_w_c, features) -> FrameLandmarks:
+        """Process the next frame (see the module docstring).
+
+        Args:
+            frame_id: increasing frame id.
+            timestamp: seconds.
+            camera: the frame's camera.
+            T_w_c: (4, 4) the frame's pose prior, camera-to-world, metres.
+            features: its ``matchers.Features`` (keypoints in raw pixels).
+        """
+        s = self.settings
+        T_w_c = check_transform("T_w_c", T_w_c)
+        kp = np.asarray(features.keypoints, np.float64)
+        self._current_kp = kp
+        w = self.window
+        if not w.keyframe_ids:
+            self._insert(frame_id, timestamp, camera, T_w_c, features, ())
+            return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
+                                  "first frame", 0, float("inf"))
+        newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
+        matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
+        n_matches = sum(len(m) for m in matches)
+        points = w.query(camera, T_w_c, kp, matches)
+        newest = newest_first[0]
+        rel = self._pair_relative_sigma(newest, camera, points, matches[0])
+        reason = ""
+        if frame_id - newest >= s.max_keyframe_gap:
+            reason = f"{frame_id - newest} frames since the newest keyframe"
+        elif rel <= s.keyframe_relative_sigma:
+            reason = f"parallax: two-view relative depth sigma {rel:.3f} <= {s.keyframe_relative_sigma}"
+        elif self._last_tracked and points.associated < s.keyframe_min_tracked_fraction * self._last_tracked:
+            reason = f"{points.associated} of the newest keyframe's {self._last_tracked} landmarks found"
+        if not reason:
+            return FrameLandmarks(points, False, "", n_matches, rel)
+        update = self._insert(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
+        points = w.query(camera, None, kp, frame_id=frame_id)
+        return FrameLandmarks(points, True, reason, n_matches, rel, update)
+
+    def _insert(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
+        w = self.window
+        update = w.add_keyframe(KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c,
+                                              np.asarray(features.keypoints, np.float64), matches))
+        self._features[int(frame_id)] = features
+        for k in list(self._features):
+            if k not in w.keyframe_ids:
+                del self._features[k]
+        lm = w.landmarks()
+        if lm is not None and w._obs is not None:
+            sel = (w._obs.frame == frame_id) & lm.inlier & lm.valid[lm.obs_track]
+            self._last_tracked = int(sel.sum())
+        return update

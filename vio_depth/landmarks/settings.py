@@ -1,0 +1,172 @@
+"""Settings of the landmark estimator: pose-prior uncertainty per dataset kind and the window.
+
+Pose priors (:class:`PosePriorSettings`) state how far a sequence's keyframe poses may be
+from the truth, as 1-sigma values:
+
+* ``absolute_*``: each keyframe's pose in the world (the gauge, and a bound on drift);
+* ``relative_*``: the motion between consecutive keyframes (odometry-like; much tighter
+  than the absolute error for KinectFusion, mocap and INS, whose errors are correlated
+  in time). The relative translation sigma is ``relative_translation_m +
+  relative_translation_fraction * |t|``.
+
+The images refine the poses within these bounds; the metric scale is held by the priors
+(or by IMU factors, :class:`~vio_depth.landmarks.window.MotionFactorSource`), never by the
+images. Presets (:data:`POSE_PRIOR_PRESETS`) name dataset kinds; their numbers are
+stated guesses checked where we have data (docs/benchmarks.md, "Landmarks").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+from triangulation.multiview import MultiviewSettings
+from vio_core.errors import SettingsError, lookup
+
+
+@dataclass(frozen=True)
+class PosePriorSettings:
+    """1-sigma uncertainty of keyframe poses given by the sequence (see the module docstring).
+
+    Attributes:
+        absolute_rotation_deg / absolute_translation_m: of each pose in the world; the
+            first keyframe always gets this prior (it fixes the gauge).
+        relative_rotation_deg / relative_translation_m / relative_translation_fraction:
+            of the motion between consecutive keyframes.
+        relative_translation_axes: multipliers of the relative translation sigma along the
+            later keyframe's camera axes (x right, y down, z optical axis). KinectFusion
+            tracks depth images by ICP, which pins motion along the viewing direction much
+            better than sliding along the (often planar) surfaces: (4, 4, 0.4).
+        absolute_on_every_keyframe: False when only the first keyframe is anchored and
+            motion factors (IMU) carry the rest; the relative priors are then not added
+            either (the motion factor source replaces them).
+    """
+
+    absolute_rotation_deg: float = 1.0
+    absolute_translation_m: float = 0.05
+    relative_rotation_deg: float = 0.2
+    relative_translation_m: float = 0.003
+    relative_translation_fraction: float = 0.02
+    relative_translation_axes: tuple = (1.0, 1.0, 1.0)
+    absolute_on_every_keyframe: bool = True
+
+    def __post_init__(self):
+        values = (self.absolute_rotation_deg, self.absolute_translation_m, self.relative_rotation_deg,
+                  self.relative_translation_m)
+        if not all(math.isfinite(v) and v > 0 for v in values):
+            raise SettingsError("pose prior sigmas must be finite and > 0")
+        if not self.relative_translation_fraction >= 0:
+            raise SettingsError("relative_translation_fraction must be >= 0")
+        axes = tuple(float(a) for a in self.relative_translation_axes)
+        if len(axes) != 3 or not all(math.isfinite(a) and a > 0 for a in axes):
+            raise SettingsError("relative_translation_axes must be three finite values > 0")
+        object.__setattr__(self, "relative_translation_axes", axes)
+
+    def relative_translation_sigma(self, translation_m: float) -> float:
+        """1-sigma (metres) of a keyframe-to-keyframe translation of ``translation_m`` metres
+        (before the per-axis multipliers)."""
+        return self.relative_translation_m + self.relative_translation_fraction * abs(translation_m)
+
+    def relative_sigmas(self, translation_m: float):
+        """(6,) 1-sigma of a relative pose: rotation (rad) x 3, then translation (m) per axis."""
+        import numpy as np
+
+        t = self.relative_translation_sigma(translation_m)
+        return np.array([math.radians(self.relative_rotation_deg)] * 3 + [t * a for a in self.relative_translation_axes])
+
+
+#: Pose-prior presets by dataset kind. "exact": rendered sequences (sample_sequences);
+#: "mocap": motion capture (EuRoC Vicon, TUM); "kinectfusion": 7-Scenes; "ins": KITTI OXTS;
+#: "imu": only the first keyframe is anchored, a MotionFactorSource must add the rest.
+POSE_PRIOR_PRESETS: dict[str, PosePriorSettings] = {
+    # rendered: exact up to float noise
+    "exact": PosePriorSettings(0.01, 0.001, 0.005, 0.0002, 0.001),
+    # Vicon/OptiTrack marker poses mapped to the camera: not measured here (a stated guess)
+    "mocap": PosePriorSettings(0.1, 0.005, 0.05, 0.002, 0.01),
+    # 7-Scenes: translations jitter by ~1 cm around the (drift-free) model: PnP of the colour
+    # images on the Kinect depth disagrees with them by 5-37 mm over 6 frames, at any gap,
+    # so there is no useful relative (odometry-like) translation prior; rotations are kept
+    # tight because freeing them makes the refined geometry agree *worse* with the Kinect
+    # depth (docs/benchmarks.md, "Landmarks")
+    "kinectfusion": PosePriorSettings(0.05, 0.01, 0.05, 1.0, 0.0),
+    # KITTI OXTS (RTK GPS/INS): absolute metres, relative cm
+    "ins": PosePriorSettings(0.1, 0.3, 0.05, 0.02, 0.01),
+    "imu": PosePriorSettings(0.01, 0.001, 1.0, 0.1, 0.0, absolute_on_every_keyframe=False),
+}
+
+
+def pose_prior_preset(name: str, **overrides) -> PosePriorSettings:
+    """Preset ``name`` of :data:`POSE_PRIOR_PRESETS` with optional field overrides.
+
+    Raises:
+        UnknownNameError: unknown name (lists the valid ones).
+    """
+    return replace(lookup("pose prior preset", name, POSE_PRIOR_PRESETS), **overrides)
+
+
+@dataclass(frozen=True)
+class LandmarkSettings:
+    """Everything that shapes the landmark estimator (one default for indoors and outdoors).
+
+    Attributes:
+        pose_prior: :class:`PosePriorSettings` of the sequence's poses.
+        multiview: track triangulation and qualification (:class:`MultiviewSettings`):
+            pixel sigma, residual gate in sigmas, ``max_relative_sigma``.
+        window_keyframes: keyframes kept in the window; the oldest is marginalised
+            beyond it (bounds memory and time).
+        match_keyframes: newest keyframes every frame is matched with.
+        min_track_length: fewest keyframe observations of a landmark in the graph.
+        huber_sigmas: Huber threshold of the projection factors, in pixel sigmas.
+        ba_relative_sigma_factor: tracks enter the graph when VALID, or UNCERTAIN with a
+            predicted relative depth sigma up to this factor times ``max_relative_sigma``
+            before refinement (the poses' prior uncertainty inflates it; the refinement is
+            what shrinks it). Only VALID tracks after refinement are returned as points.
+        keyframe_relative_sigma: a frame becomes a keyframe when the median predicted
+            relative depth sigma of its two-view matches with the newest keyframe falls
+            below this (enough new parallax -- measured against pixel and pose
+            uncertainty, so the same value serves any scene scale) ...
+        keyframe_min_tracked_fraction: ... or when fewer than this fraction of the
+            newest keyframe's tracked landmarks are found in the frame (the view changed).
+        max_keyframe_gap: ... or when this many frames passed since the newest keyframe.
+        lm_max_iterations: Levenberg-Marquardt iterations per keyframe.
+        restart_from_priors: with pose priors on every keyframe, each refinement starts
+            from the priors instead of the previous estimate (robust to a window that went
+            astray; costs a few more iterations).
+        query_max_iterations: Gauss-Newton iterations of a frame's pose refinement.
+        min_query_points: fewer associated landmarks than this -> the frame's pose is
+            not refined (its prior is used) and it is reported.
+    """
+
+    pose_prior: PosePriorSettings = field(default_factory=lambda: POSE_PRIOR_PRESETS["exact"])
+    multiview: MultiviewSettings = field(default_factory=MultiviewSettings)
+    window_keyframes: int = 8
+    match_keyframes: int = 3
+    min_track_length: int = 2
+    huber_sigmas: float = 2.0
+    ba_relative_sigma_factor: float = 3.0
+    keyframe_relative_sigma: float = 0.25
+    keyframe_min_tracked_fraction: float = 0.5
+    max_keyframe_gap: int = 30
+    lm_max_iterations: int = 15
+    restart_from_priors: bool = True
+    query_max_iterations: int = 5
+    min_query_points: int = 12
+
+    def __post_init__(self):
+        if self.window_keyframes < 2 or self.match_keyframes < 1:
+            raise SettingsError("window_keyframes must be >= 2 and match_keyframes >= 1")
+        if self.min_track_length < 2:
+            raise SettingsError("min_track_length must be >= 2")
+        if not (self.huber_sigmas > 0 and self.keyframe_relative_sigma > 0):
+            raise SettingsError("huber_sigmas and keyframe_relative_sigma must be > 0")
+        if not 0 <= self.keyframe_min_tracked_fraction <= 1:
+            raise SettingsError("keyframe_min_tracked_fraction must be in [0, 1]")
+        if self.max_keyframe_gap < 1 or self.lm_max_iterations < 1 or self.query_max_iterations < 0:
+            raise SettingsError("max_keyframe_gap and lm_max_iterations must be >= 1, query_max_iterations >= 0")
+        if self.min_query_points < 3:
+            raise SettingsError("min_query_points must be >= 3")
+
+    @classmethod
+    def for_poses(cls, kind: str, **overrides) -> "LandmarkSettings":
+        """Defaults with the pose-prior preset ``kind`` (see :data:`POSE_PRIOR_PRESETS`)."""
+        return cls(pose_prior=pose_prior_preset(kind), **overrides)
