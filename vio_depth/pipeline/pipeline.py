@@ -12,11 +12,12 @@ import time
 from dataclasses import replace
 
 from matchers import Matcher, create_matcher
+from vio_core.errors import InputError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
 from ..frame import Frame
-from ..poses import PoseSource, create_pose_source
+from ..poses import PoseSource, TrackingPoseSource, VioSettings, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
 from .points import TwoViewPoints
 from .result import FrameResult, PointsOutcome
@@ -44,19 +45,33 @@ class Pipeline:
                  disparity_source: DisparitySource | None = None, *, sequence=None, matcher: Matcher | None = None):
         self.settings = settings = PipelineSettings() if settings is None else settings
         self.sequence = sequence
-        self.pose_source = create_pose_source(settings.poses, sequence) if pose_source is None else pose_source
+        sfm = settings.points.kind == PointSourceKind.SFM
+        tracking = isinstance(pose_source, TrackingPoseSource) or (
+            pose_source is None and isinstance(settings.poses, VioSettings))
+        if matcher is None and tracking and pose_source is not None:
+            matcher = pose_source.matcher
+        if matcher is None and (sfm or tracking):
+            matcher = create_matcher(settings.matcher)
+        self._matcher = matcher
+        self.pose_source = create_pose_source(settings.poses, sequence, matcher) if pose_source is None else pose_source
+        #: the pose source that estimates poses from the frames itself (visual-inertial odometry), or None
+        self.tracker: TrackingPoseSource | None = (self.pose_source if isinstance(self.pose_source, TrackingPoseSource)
+                                                   else None)
+        if self.tracker is not None and self.tracker.matcher is not matcher:
+            raise InputError(f"the {self.tracker.name} pose source must use the pipeline's matcher "
+                             "(its features are extracted once, by the pipeline)")
         self.disparity_source = (create_disparity_source(settings.disparity, sequence)
                                  if disparity_source is None else disparity_source)
         self.rescaler = Rescaler(settings.rescaler)
         self.points = None
-        if settings.points.kind == PointSourceKind.SFM:
-            matcher = create_matcher(settings.matcher) if matcher is None else matcher
+        if sfm:
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
                                         settings.min_matches)
 
     @property
     def matcher(self) -> Matcher | None:
-        return None if self.points is None else self.points.matcher
+        """The matcher that extracts every frame's features (None when no stage needs features)."""
+        return self._matcher
 
     def fresh(self) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history."""
@@ -69,14 +84,19 @@ class Pipeline:
         timings: dict[str, float] = {}
         clock = time.perf_counter
         features = None
-        if self.points is not None:
+        if self._matcher is not None:
             t = clock()
             image = frame.image()  # read once: a model disparity source gets the same pixels
             frame = replace(frame, load_image=lambda: image)
             timings["image"] = clock() - t
             t = clock()
-            features = self.points.matcher.extract(image)  # once per frame, kept if keyframe
+            features = self._matcher.extract(image)  # once per frame, kept if keyframe
             timings["features"] = clock() - t
+        frame_pose = None
+        if self.tracker is not None:  # the odometry sees every frame, in order, before any relative pose
+            t = clock()
+            frame_pose = self.tracker.track(frame, features)
+            timings["poses"] = clock() - t
         t = clock()
         disparity = self.disparity_source(frame)
         timings["disparity"] = clock() - t
@@ -84,7 +104,7 @@ class Pipeline:
         t = clock()
         spec = self.settings.points
         if self.points is not None:
-            points = self.points.process(frame, features)
+            points = self.points.process(frame, features, frame_pose)
         else:
             gt = frame.gt_depth()
             if gt is None:
@@ -95,7 +115,7 @@ class Pipeline:
         timings["points"] = clock() - t
 
         result = FrameResult(frame.index, frame.stem, frame.timestamp, points.status, points.reason, spec, points,
-                             timings=timings)
+                             timings=timings, frame_pose=frame_pose)
         if disparity is None:
             result.status, result.reason = FrameStatus.NO_DISPARITY, "no disparity map for this frame"
             log.debug("frame %d: no disparity map", frame.index)

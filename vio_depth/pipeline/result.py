@@ -8,6 +8,7 @@ import numpy as np
 
 from ..evaluation import PointSourceSpec
 from ..keyframes import Motion
+from ..poses import FramePose
 from ..rescale import AffineFit, RescaleResult
 from .status import FrameStatus, PairStatus
 
@@ -120,6 +121,7 @@ class FrameResult:
         backfilled: the result comes from the offline backward pass.
         disparity_valid_fraction: fraction of finite pixels of the disparity map (None
             without a map).
+        frame_pose: the tracking pose source's own pose of the frame (``--poses vio``), or None.
     """
 
     frame: int
@@ -140,6 +142,7 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)
     backfilled: bool = False
     disparity_valid_fraction: float | None = None
+    frame_pose: FramePose | None = field(default=None, repr=False)
 
     @property
     def has_depth(self) -> bool:
@@ -157,4 +160,4 @@ class FrameResult:
 
 
 #: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself
-PIPELINE_STAGES = ("image", "disparity", "features", "points", "fit", "depth")
+PIPELINE_STAGES = ("image", "disparity", "features", "poses", "points", "fit", "depth")
