@@ -71,7 +71,7 @@ class Pipeline:
     @property
     def matcher(self) -> Matcher | None:
         """The matcher that extracts every frame's features (None when no stage needs features)."""
-        return self._matcher
+        return self.points.matcher if self.points is not None else self._matcher
 
     def fresh(self) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history."""
@@ -84,13 +84,14 @@ class Pipeline:
         timings: dict[str, float] = {}
         clock = time.perf_counter
         features = None
-        if self._matcher is not None:
+        matcher = self.matcher
+        if matcher is not None:
             t = clock()
             image = frame.image()  # read once: a model disparity source gets the same pixels
             frame = replace(frame, load_image=lambda: image)
             timings["image"] = clock() - t
             t = clock()
-            features = self._matcher.extract(image)  # once per frame, kept if keyframe
+            features = matcher.extract(image)  # once per frame, kept if keyframe
             timings["features"] = clock() - t
         frame_pose = None
         if self.tracker is not None:  # the odometry sees every frame, in order, before any relative pose

@@ -115,7 +115,9 @@ class VioSettings:
         max_scale_sigma: a frame's pose is trusted only while the window knows the metric scale
             to this relative 1-sigma (the distance between its oldest and newest keyframe,
             from the smoother's covariance); before, e.g. just after a start with little
-            excitation, the frame has no pose (status ``converging``).
+            excitation, the frame has no pose (status ``converging``) ...
+        min_span_sigma_m: ... unless that 1-sigma is below this many metres (a still or slow
+            camera after a static start: its short span is known well).
         max_speed_m_s: a faster estimated velocity means the estimate diverged.
         max_accel_bias / max_gyro_bias: larger estimated biases mean it diverged.
         max_imu_only_s: longest time without enough landmarks before tracking is lost.
@@ -134,6 +136,7 @@ class VioSettings:
     init: VioInitSettings = field(default_factory=VioInitSettings)
     velocity_sigma: float = 0.01
     max_scale_sigma: float = 0.03
+    min_span_sigma_m: float = 0.01
     gauge_sigma_m: float = 1e-3
     gauge_yaw_sigma_rad: float = 1e-3
     tilt_sigma_rad: float = 0.02
@@ -148,7 +151,7 @@ class VioSettings:
     history_frames: int = 20000
 
     def __post_init__(self):
-        for name in ("velocity_sigma", "max_scale_sigma", "gauge_sigma_m", "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s",
+        for name in ("velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m", "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s",
                      "max_accel_bias", "max_gyro_bias", "max_imu_only_s", "epipolar_threshold_px",
                      "predict_velocity_sigma", "predict_gyro_sigma"):
             v = getattr(self, name)

@@ -46,7 +46,7 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import LandmarkEstimator
-from ..poses import VioSettings
+from ..poses import VioSettings, adjoint
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitResult
@@ -229,23 +229,37 @@ class VioEstimator:
         return ""
 
     def _bridge(self, t: float, a: int, b: int):
-        """Pose (4, 4) and covariance (6, 6) relative to keyframe ``a`` of a frame at ``t`` between
-        keyframes ``a`` and ``b``: the IMU prediction from ``a``'s state, its mismatch at ``b``
-        spread linearly in time (a bridge), or ``(None, None)``."""
+        """Camera pose (4, 4) of a frame at ``t`` between keyframes ``a`` and ``b`` and its
+        covariance (6, 6) relative to ``b``, or ``(None, None)``.
+
+        The IMU prediction from ``a``'s state, its mismatch at ``b`` spread linearly in time
+        (a bridge). Covariance: the preintegration noise from ``t`` to ``b``, plus the share
+        ``(1 - s)^2`` of the relative uncertainty of ``a`` and ``b`` (``s`` the fraction of
+        the interval elapsed at ``t``).
+        """
         w = self.landmarks.window
         est = w.estimate
         st = self.factors.state_of(est, a, self._times[a])
-        end, cov, _ = self.factors.predict(st, t)
-        end_b, _, _ = self.factors.predict(st, self._times[b])
+        t_b = self._times[b]
+        end, _, _ = self.factors.predict(st, t)
+        end_b, _, _ = self.factors.predict(st, t_b)
         if end is None or end_b is None:
             return None, None
-        T_b = self.factors.state_of(est, b, self._times[b]).T_w_i
-        s = (t - st.t) / max(self._times[b] - st.t, 1e-12)
+        _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
+        T_b = self.factors.state_of(est, b, t_b).T_w_i
+        s = (t - st.t) / max(t_b - st.t, 1e-12)
         dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
         T = end.T_w_i.copy()
         T[:3, :3] = Rotation.from_rotvec(s * dR).as_matrix() @ T[:3, :3]
         T[:3, 3] = T[:3, 3] + s * (T_b[:3, 3] - end_b.T_w_i[:3, 3])
-        return T @ invert_transform(self.factors.T_c_i), cov
+        T_w_f = T @ invert_transform(self.factors.T_c_i)
+        T_f_b = invert_transform(T_w_f) @ w.pose(b)
+        A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
+        C = A @ C_fb @ A.T
+        S = w.joint_covariance([a, b])
+        C_ab = PoseHistory._pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
+        C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
+        return T_w_f, 0.5 * (C + C.T)
 
     # ------------------------------------------------------------------ per frame
     def process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
@@ -305,7 +319,7 @@ class VioEstimator:
             self._unbridged = []
             self._sync_history()
             T, C, anchor = w.pose(frame_id), np.zeros((6, 6)), frame_id
-            n_lm = int(fl.update.landmarks) if fl.update is not None else 0
+            n_lm = len(fl.points)  # landmarks observed in this keyframe
             visual = n_lm >= s.min_tracked_landmarks
         else:
             visual = fl.points.pose_refined and fl.points.associated >= s.min_tracked_landmarks
@@ -331,12 +345,13 @@ class VioEstimator:
 
     def _trusted(self, out: VioFrame) -> VioFrame:
         """``out``, or without its pose (status converging) while the scale is not known well enough."""
-        sigma = self.history.window_scale_sigma()
-        if sigma <= self.settings.max_scale_sigma:
+        s = self.settings
+        sigma, distance = self.history.window_span_sigma()
+        if sigma <= max(s.max_scale_sigma * distance, s.min_span_sigma_m):
             return out
         return replace(out, status=VioStatus.CONVERGING, T_w_c=None, covariance=None,
-                       reason=f"converging: the metric scale is known to {sigma:.1%} "
-                              f"(> {self.settings.max_scale_sigma:.0%}); the pose is kept for later")
+                       reason=f"converging: the metric scale is known to {sigma / max(distance, 1e-12):.1%} "
+                              f"(> {s.max_scale_sigma:.0%}); the pose is kept for later")
 
 
 

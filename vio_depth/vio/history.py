@@ -161,22 +161,24 @@ class PoseHistory:
             return invert_transform(T), A @ C @ A.T
         return T, C
 
-    def window_scale_sigma(self) -> float:
-        """Relative 1-sigma of the distance between the window's oldest and newest keyframe
-        (from the joint covariance): how well the metric scale is known (inf when undefined)."""
-        if self._window is None or len(self._window[0]) < 2:
-            return float("inf")
+    def window_span_sigma(self) -> tuple[float, float]:
+        """``(sigma, distance)`` metres: the 1-sigma along the line between the window's oldest and
+        newest keyframe (from the joint covariance) and their distance; ``(0, 0)`` for a single
+        keyframe, ``(inf, 0)`` without a window.
+        ``sigma / distance`` is how well the window knows the metric scale."""
+        if self._window is None:
+            return float("inf"), 0.0
+        if len(self._window[0]) < 2:
+            return 0.0, 0.0  # one keyframe: no span to be unsure about
         ids, S = self._window
         a, b = ids[0], ids[-1]
         T_a, T_b = self._kf_pose[a], self._kf_pose[b]
         C = self._pair_covariance(T_a, T_b, S, 0, len(ids) - 1)
-        d = (invert_transform(T_a) @ T_b)[:3, 3]
-        d_b = T_b[:3, :3].T @ T_a[:3, :3] @ d  # the displacement in b's frame (where the error lives)
+        d_b = T_b[:3, :3].T @ (T_b[:3, 3] - T_a[:3, 3])  # the displacement in b's frame (where the error lives)
         n = float(np.linalg.norm(d_b))
-        if n <= 0:
-            return float("inf")
-        u = d_b / n
-        return float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0)) / n)
+        u = d_b / n if n > 0 else np.zeros(3)
+        sigma = float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0))) if n > 0 else float(np.sqrt(np.trace(C[3:, 3:]) / 3))
+        return sigma, n
 
     def relative(self, a: int, b: int) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         """``(T_ab (4, 4), covariance (6, 6), "")`` of stored frames ``a`` and ``b``, or ``(None, None, reason)``."""
