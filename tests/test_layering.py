@@ -30,8 +30,10 @@ RANKS = {
     "vio_depth.export": 6,
     "vio_depth.report": 7,
     "vio_depth.pipeline": 7,
+    "vio_depth.baselines": 7,  # re-implemented published methods, beside the pipeline
     "vio_depth.run": 8,
     "vio_depth.simulate": 9,
+    "vio_depth.experiments": 9,  # vio-depth eval: runs (8) and baselines (7) over many sequences
     "vio_depth.cli": 9,
     "vio_depth": 10,  # the package __init__: the public API
 }
@@ -145,7 +147,7 @@ def test_every_public_name_is_exported_by_its_package():
     """Each package ``__init__`` lists names that exist (``from pkg import *`` works)."""
     code = (
         "import importlib\n"
-        f"for pkg in {list(PACKAGES) + ['vio_depth.io', 'vio_depth.disparity', 'vio_depth.poses', 'vio_depth.rescale', 'vio_depth.evaluation', 'vio_depth.pipeline', 'vio_depth.run']!r}:\n"
+        f"for pkg in {list(PACKAGES) + ['vio_depth.io', 'vio_depth.disparity', 'vio_depth.poses', 'vio_depth.rescale', 'vio_depth.evaluation', 'vio_depth.pipeline', 'vio_depth.run', 'vio_depth.baselines', 'vio_depth.experiments']!r}:\n"
         "    m = importlib.import_module(pkg)\n"
         "    missing = [n for n in m.__all__ if not hasattr(m, n)]\n"
         "    assert not missing, (pkg, missing)\n"

@@ -1,8 +1,16 @@
-"""Two-view triangulation of matched keypoints with a known metric relative pose.
+"""Triangulation with known metric poses: two views (``triangulate``) and N-view tracks
+with pose uncertainty (``multiview``).
 
 A leaf layer: it imports only :mod:`vio_core` (and numpy, scipy).
 """
 
+from .multiview import (
+    MultiviewPoints,
+    MultiviewSettings,
+    TrackStatus,
+    depth_in_view,
+    triangulate_tracks,
+)
 from .triangulate import (
     TRIANGULATION_PRESETS,
     PointStatus,
@@ -16,6 +24,11 @@ from .triangulate import (
 
 __all__ = [
     "TRIANGULATION_PRESETS",
+    "MultiviewPoints",
+    "MultiviewSettings",
+    "TrackStatus",
+    "depth_in_view",
+    "triangulate_tracks",
     "PointStatus",
     "TriangulatedPoints",
     "TriangulationSettings",

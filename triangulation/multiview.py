@@ -202,8 +202,28 @@ def pose_jacobian(p_c) -> np.ndarray:
 
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    out = np.zeros((n,) + values.shape[1:])
-    np.add.at(out, index, values)
+    """Sums of ``values: (M, ...)`` grouped by ``index: (M,)`` into (n, ...) (bincount per component)."""
+    flat = values.reshape(len(values), int(np.prod(values.shape[1:], dtype=np.int64)))
+    out = np.empty((n, flat.shape[1]))
+    for k in range(flat.shape[1]):
+        out[:, k] = np.bincount(index, weights=flat[:, k], minlength=n)
+    return out.reshape((n,) + values.shape[1:])
+
+
+def _quad2(r: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(M,) quadratic forms ``r_i^T S_i r_i`` of ``r: (M, 2)``, ``S: (M, 2, 2)``."""
+    r0, r1 = r[:, 0], r[:, 1]
+    return r0 * (S[:, 0, 0] * r0 + S[:, 0, 1] * r1) + r1 * (S[:, 1, 0] * r0 + S[:, 1, 1] * r1)
+
+
+def _inv2(S: np.ndarray) -> np.ndarray:
+    """Batched closed-form inverse of (M, 2, 2) symmetric positive-definite matrices."""
+    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    det = a * d - b * b
+    out = np.empty_like(S)
+    out[:, 0, 0] = d / det
+    out[:, 1, 1] = a / det
+    out[:, 0, 1] = out[:, 1, 0] = -b / det
     return out
 
 
@@ -302,37 +322,43 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     mark(_sum_by(t, (inlier & (z_lin > 0)).astype(float), n_tracks) == 0, TrackStatus.BEHIND_CAMERA)
 
     # whitening of each observation: pixel noise + image motion from pose uncertainty
+    cov_v = None if cov is None else cov[view]
+
     def obs_info(p_c):
         Jp = _projection_jacobian(p_c, fx, fy)
-        S = np.broadcast_to(s.pixel_sigma_px**2 * np.eye(2), (m, 2, 2)).copy()
+        S = np.zeros((m, 2, 2))
+        S[:, 0, 0] = S[:, 1, 1] = s.pixel_sigma_px**2
         J_pose = None
         if cov is not None:
             J_pose = Jp @ pose_jacobian(p_c)  # (M, 2, 6) pixels per pose tangent unit
-            S = S + J_pose @ cov[view] @ np.transpose(J_pose, (0, 2, 1))
-        return Jp, np.linalg.inv(S), J_pose
+            S = S + J_pose @ cov_v @ np.transpose(J_pose, (0, 2, 1))
+        return Jp, _inv2(S), J_pose
 
     def residuals(X):
-        p_c = np.einsum("nij,nj->ni", R_cw, X[t] - centres)
+        p_c = (R_cw @ (X[t] - centres)[:, :, None])[:, :, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             proj = np.column_stack([fx * p_c[:, 0] / p_c[:, 2] + cx, fy * p_c[:, 1] / p_c[:, 2] + cy])
         return p_c, proj - ideal
 
     def track_cost(r, S_inv, use):
-        e = np.einsum("ni,nij,nj->n", r, S_inv, r)
+        e = _quad2(r, S_inv)
         return _sum_by(t, np.where(use & np.isfinite(e), e, 0.0), n_tracks), e
 
     active = status == TrackStatus.VALID
     for round_ in range(s.outlier_rounds + 1):
-        # --- Gauss-Newton on the whitened reprojection error
+        # --- Gauss-Newton on the whitened reprojection error (the whitening is fixed within
+        # a round: it depends on the point only through the pose term, slowly)
+        p_c, r = residuals(X)
+        _, S_inv, _ = obs_info(p_c)
         for _ in range(_GN_ITERATIONS):
             p_c, r = residuals(X)
-            Jp, S_inv, _ = obs_info(p_c)
+            Jp = _projection_jacobian(p_c, fx, fy)
             use = inlier & active[t] & (p_c[:, 2] > 0)
             J = Jp @ R_cw  # (M, 2, 3) d pixel / d X
             JtS = np.transpose(J, (0, 2, 1)) @ S_inv
             wts = use.astype(float)
             H = _sum_by(t, wts[:, None, None] * (JtS @ J), n_tracks)
-            g = _sum_by(t, wts[:, None] * np.einsum("nij,nj->ni", JtS, np.nan_to_num(r)), n_tracks)
+            g = _sum_by(t, wts[:, None] * (JtS @ np.nan_to_num(r)[:, :, None])[:, :, 0], n_tracks)
             step, solvable = _solve3(H, -g)
             cost0, _ = track_cost(r, S_inv, use)
             X_new = np.where((solvable & active)[:, None], X + np.nan_to_num(step), X)
@@ -340,14 +366,18 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             cost1, _ = track_cost(r_new, S_inv, use & (p_new[:, 2] > 0))
             better = solvable & active & (cost1 <= cost0) & np.all(np.isfinite(X_new), axis=1)
             X = np.where(better[:, None], X_new, X)
-            if not better.any() or np.max(np.abs(np.where(better[:, None], step, 0.0))) < 1e-10:
+            # converged: no track moved by more than 1e-7 of its distance to the cameras
+            moved = np.where(better, np.linalg.norm(np.nan_to_num(step), axis=1), 0.0)
+            scale = np.maximum(np.sqrt(_sum_by(t, np.sum((X[t] - centres) ** 2, 1), n_tracks)
+                                       / np.maximum(n_obs, 1)), 1e-9)
+            if not np.any(moved > 1e-7 * scale):
                 break
         if round_ == s.outlier_rounds:
             break
         # --- drop the worst outlier of each track that has one
         p_c, r = residuals(X)
         _, S_inv, _ = obs_info(p_c)
-        e = np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6))
+        e = _quad2(np.nan_to_num(r, nan=1e6), S_inv)
         e = np.where(p_c[:, 2] > 0, e, np.inf)
         bad = inlier & active[t] & (e > s.max_residual_sigmas**2)
         if not bad.any():
@@ -363,7 +393,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     # --- final residuals, gate, covariance, per-observation depth and sigma
     p_c, r = residuals(X)
     Jp, S_inv, J_pose = obs_info(p_c)
-    e = np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6))
+    e = _quad2(np.nan_to_num(r, nan=1e6), S_inv)
     behind = p_c[:, 2] <= 0
     inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)

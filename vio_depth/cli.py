@@ -4,6 +4,7 @@
     vio-depth config [--config FILE] [settings flags] --dump
     vio-depth presets
     vio-depth report OUT_DIR
+    vio-depth eval SEQ[@OPTIONS]... --out DIR [--variants paper] [--studies all] [--executor local|ray]
 
 Settings come from, in increasing priority: the defaults, ``--config FILE`` (TOML), the
 flags. Known errors (bad input, unknown names, invalid settings, missing optional packages,
@@ -29,6 +30,7 @@ from vio_core.settings import override
 from ._version import __version__
 from .disparity import DISPARITY_CHOICES, disparity_presets
 from .evaluation import POINT_SPEC_FORMS, parse_points_spec
+from .experiments import add_eval_parser, format_results, request_from_args, run_evaluation
 from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats, open_sequence
 from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
@@ -149,6 +151,7 @@ def _build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="write an HTML + Markdown report of a finished run (also of old runs)")
     rep.add_argument("out_dir", help="the --out folder of a vio-depth run")
     rep.add_argument("--to", default=None, metavar="DIR", help="report folder (default: OUT_DIR/report)")
+    add_eval_parser(sub)
     return p
 
 
@@ -309,6 +312,16 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_eval(args) -> int:
+    outcome = run_evaluation(request_from_args(args))
+    print(format_results(outcome.rows))
+    print(f"{outcome.tasks} tasks ({outcome.tasks_cached} from the cache) in {outcome.wall_seconds:.0f} s; "
+          f"wrote {outcome.out / 'results.csv'} and " + ", ".join(str(d) for d in outcome.documents))
+    if any(r.get("disparity") == "simulated" for r in outcome.rows):
+        print("note: SIMULATED disparity in this evaluation (not Depth Anything predictions)")
+    return 0
+
+
 def _configure_logging(verbose: int, quiet: bool) -> None:
     """Log records of the ``vio_depth`` logger go to stderr: warnings by default, -v info,
     -vv debug, -q errors only (one handler, also when ``main`` is called repeatedly)."""
@@ -344,6 +357,8 @@ def main(argv=None) -> int:
             return _cmd_config(args)
         if args.command == "report":
             return _cmd_report(args)
+        if args.command == "eval":
+            return _cmd_eval(args)
         return _cmd_run(args)
     except VioDepthError as exc:
         print(f"vio-depth: error: {_one_line(exc)}{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)

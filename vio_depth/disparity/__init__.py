@@ -10,10 +10,12 @@ module             job
 ``densify``        densifying sparse real ground truth before simulating
 ``registry``       :class:`DisparitySettings` and :func:`create_disparity_source`
 ``validity``       per-frame content checks: valid fraction, constant and inverted maps
+``cache``          :class:`CachedDisparitySource`: each frame's map computed once, kept on disk
 =================  ==========================================================================
 """
 
 from .base import DisparityKind, DisparitySource, DisparitySpec, check_disparity
+from .cache import CachedDisparitySource, cache_key
 from .densify import GtDisparitySettings, densify_depth, simulate_gt_disparity
 from .model import ModelDisparity
 from .registry import DISPARITY_CHOICES, DisparitySettings, create_disparity_source, source_for_spec
@@ -30,6 +32,7 @@ from .validity import DisparityCheck, check_inversion, check_map_content, rank_c
 __all__ = [
     "DISPARITY_CHOICES",
     "DisparityCheck",
+    "CachedDisparitySource",
     "DisparityKind",
     "DisparitySettings",
     "DisparitySimulation",
@@ -40,6 +43,7 @@ __all__ = [
     "ModelDisparity",
     "SimulatedDisparity",
     "SimulatedDisparitySource",
+    "cache_key",
     "check_disparity",
     "check_inversion",
     "check_map_content",

@@ -7,16 +7,35 @@ module                 job
 =====================  ======================================================================
 ``metrics``            :func:`compute_metrics` (delta1, AbsRel, RMSE), :func:`oracle_fit`
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
+``masks``              :class:`EvalMask`: depth caps and the KITTI Garg / Eigen crops
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 ``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
+``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
+``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
 from .imu_propagation import PropagationErrors, evaluate_propagation, ground_truth_frames
+from .masks import CROPS, EvalMask, crop_bounds
 from .metrics import DepthMetrics, average_metrics, compute_metrics, depth_reprojection_errors, oracle_fit
+from .perturb import (
+    STUDIES,
+    ImuNoiseBoost,
+    OutlierDraw,
+    PerturbedSequence,
+    PoseNoise,
+    SparsePoints,
+    Study,
+    add_outliers,
+    depth_noise,
+    lidar_points,
+    perturb_imu,
+    perturb_pose,
+    shift_pixels,
+)
 from .point_accuracy import PointAccuracy, point_depth_errors
 from .reference_points import (
     POINT_SPEC_FORMS,
@@ -26,6 +45,7 @@ from .reference_points import (
     parse_points_spec,
     random_samples,
 )
+from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
 from .trajectory import (
     AteResult,
     CameraTrajectory,
@@ -41,34 +61,58 @@ from .trajectory import (
 )
 
 __all__ = [
+    "CROPS",
+    "EXECUTORS",
     "POINT_SPEC_FORMS",
+    "STUDIES",
     "AteResult",
     "CameraTrajectory",
     "DepthMetrics",
     "ErrorStats",
+    "EvalMask",
+    "ExecutorSettings",
     "FrameEvaluation",
+    "ImuNoiseBoost",
+    "OutlierDraw",
+    "PerturbedSequence",
     "PointAccuracy",
     "PointSourceKind",
     "PointSourceSpec",
+    "PoseNoise",
     "PropagationErrors",
     "RpeResult",
+    "SparsePoints",
+    "Study",
+    "Task",
+    "TaskCache",
+    "TaskError",
     "absolute_trajectory_error",
+    "add_outliers",
     "aggregate_point_accuracy",
     "associate",
     "average_metrics",
     "compute_metrics",
+    "crop_bounds",
+    "depth_noise",
     "depth_reprojection_errors",
     "evaluate_frame",
     "evaluate_propagation",
+    "execute_task",
     "ground_truth_frames",
     "lidar_beams",
+    "lidar_points",
     "oracle_fit",
+    "package_version",
     "pairs_by_path",
     "parse_points_spec",
+    "perturb_imu",
+    "perturb_pose",
     "point_depth_errors",
     "random_samples",
     "read_trajectory_tum",
     "relative_pose_error",
+    "run_tasks",
+    "shift_pixels",
     "umeyama_alignment",
     "write_trajectory_tum",
 ]

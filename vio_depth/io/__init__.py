@@ -11,6 +11,8 @@ module              job
 ``rasterize``       depth images from points, depth re-projection between cameras
 ``native``          the native format (reader); ``native_writer`` writes it
 ``kitti``           KITTI raw drives; ``kitti_oxts`` their calibration and OXTS pose recipe
+``kitti_split``     KITTI split files (the Eigen test split) mapped to drives and frame indices
+``ddad``            DDAD scenes in the published DGP layout
 ``sevenscenes``     Microsoft 7-Scenes
 ``tum``             TUM RGB-D
 ``asl``             EuRoC / TUM-VI (ASL layout, ``mav0/``); ``asl_writer`` writes it
@@ -19,7 +21,7 @@ module              job
 Importing this package registers every built-in format.
 """
 
-from . import asl, kitti, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
+from . import asl, ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
 from .asl import AslSequence
 from .asl_writer import AslWriter
 from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format

@@ -71,7 +71,8 @@ class LandmarkEstimator:
         """Forget everything (a new window)."""
         self.__init__(self.settings, self.matcher, self.window.motion_factors)
 
-    def _pair_relative_sigma(self, newest: int, camera: Camera, points: LandmarkPoints, m: FrameMatches) -> float:
+    def _pair_relative_sigma(self, newest: int, camera: Camera, keypoints: np.ndarray, points: LandmarkPoints,
+                             m: FrameMatches) -> float:
         """Median predicted sigma_z/z of two-view matches with the newest keyframe, at the
         frame's (refined) pose and its covariance relative to that keyframe."""
         if len(m) < 5 or points.T_w_c is None or points.covariance is None:
@@ -87,7 +88,7 @@ class LandmarkEstimator:
         C_cur[:3, :3] = np.minimum(np.diag(np.diag(points.covariance[:3, :3])), rot_var * np.eye(3))
         C = np.stack([1e-12 * np.eye(6), C_cur])
         n = len(m)
-        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe], self._current_kp[m.idx_frame]])
+        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe], keypoints[m.idx_frame]])
         res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf.camera, camera],
                                  np.stack([T_kf, T_cur]), self.settings.multiview, C)
         ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))
@@ -113,18 +114,17 @@ class LandmarkEstimator:
         s = self.settings
         T_w_c = check_transform("T_w_c", T_w_c)
         kp = np.asarray(features.keypoints, np.float64)
-        self._current_kp = kp
         w = self.window
         if not w.keyframe_ids:
-            self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
+            update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
             return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
-                                  "first frame", 0, float("inf"))
+                                  "first frame", 0, float("inf"), update)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
         matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
         n_matches = sum(len(m) for m in matches)
         points = w.query(camera, T_w_c, kp, matches, prior_covariance=prior_covariance)
         newest = newest_first[0]
-        rel = self._pair_relative_sigma(newest, camera, points, matches[0])
+        rel = self._pair_relative_sigma(newest, camera, kp, points, matches[0])
         reason = ""
         if frame_id - newest >= s.max_keyframe_gap:
             reason = f"{frame_id - newest} frames since the newest keyframe"
@@ -136,6 +136,7 @@ class LandmarkEstimator:
             return FrameLandmarks(points, False, "", n_matches, rel)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
         points = w.query(camera, None, kp, frame_id=frame_id)
+        self._last_tracked = len(points)
         return FrameLandmarks(points, True, reason, n_matches, rel, update)
 
     def insert_keyframe(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
@@ -154,11 +155,7 @@ class LandmarkEstimator:
         update = w.add_keyframe(KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c,
                                               np.asarray(features.keypoints, np.float64), matches))
         self._features[int(frame_id)] = features
-        for k in list(self._features):
+        for k in list(self._features):  # features are kept only while their keyframe is in the window
             if k not in w.keyframe_ids:
                 del self._features[k]
-        lm = w.landmarks()
-        if lm is not None and w._obs is not None:
-            sel = (w._obs.frame == frame_id) & lm.inlier & lm.valid[lm.obs_track]
-            self._last_tracked = int(sel.sum())
         return update

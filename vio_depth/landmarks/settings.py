@@ -128,6 +128,8 @@ class LandmarkSettings:
         keyframe_min_tracked_fraction: ... or when fewer than this fraction of the
             newest keyframe's tracked landmarks are found in the frame (the view changed).
         max_keyframe_gap: ... or when this many frames passed since the newest keyframe.
+        ba_max_landmarks: most landmarks in the graph (the longest tracks, then the most
+            certain); every track is triangulated at the refined poses afterwards.
         lm_max_iterations: Levenberg-Marquardt iterations per keyframe.
         restart_from_priors: with pose priors on every keyframe, each refinement starts
             from the priors instead of the previous estimate (robust to a window that went
@@ -139,7 +141,7 @@ class LandmarkSettings:
 
     pose_prior: PosePriorSettings = field(default_factory=lambda: POSE_PRIOR_PRESETS["exact"])
     multiview: MultiviewSettings = field(default_factory=MultiviewSettings)
-    window_keyframes: int = 8
+    window_keyframes: int = 16
     match_keyframes: int = 3
     min_track_length: int = 2
     huber_sigmas: float = 2.0
@@ -147,6 +149,7 @@ class LandmarkSettings:
     keyframe_relative_sigma: float = 0.25
     keyframe_min_tracked_fraction: float = 0.5
     max_keyframe_gap: int = 30
+    ba_max_landmarks: int = 800
     lm_max_iterations: int = 15
     restart_from_priors: bool = True
     query_max_iterations: int = 5
@@ -161,6 +164,8 @@ class LandmarkSettings:
             raise SettingsError("huber_sigmas and keyframe_relative_sigma must be > 0")
         if not 0 <= self.keyframe_min_tracked_fraction <= 1:
             raise SettingsError("keyframe_min_tracked_fraction must be in [0, 1]")
+        if self.ba_max_landmarks < 1:
+            raise SettingsError("ba_max_landmarks must be >= 1")
         if self.max_keyframe_gap < 1 or self.lm_max_iterations < 1 or self.query_max_iterations < 0:
             raise SettingsError("max_keyframe_gap and lm_max_iterations must be >= 1, query_max_iterations >= 0")
         if self.min_query_points < 3:

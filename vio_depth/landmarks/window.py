@@ -218,6 +218,7 @@ class LandmarkWindow:
         self.tracks.add_frame(fid, kf.keypoints, list(kf.matches))
 
         update = self._optimise(fid)
+        shift = self._pose_shift_sigmas()
         marg = None
         if len(self._kf) > self.settings.window_keyframes:
             marg = next(iter(self._kf))
@@ -230,8 +231,14 @@ class LandmarkWindow:
                 for i in range(graph.size()):
                     f = graph.at(i)
                     self._factors.append((frozenset(f.keys()), f))
-            self._landmarks = self._triangulate()[1]
-        return WindowUpdate(**{**update.__dict__, "marginalised": marg, "keyframes": len(self._kf)})
+        # the landmarks of the (possibly shrunk) window at the refined poses and covariances
+        _, lm = self._triangulate()
+        self._landmarks = lm
+        good = lm.inlier & lm.valid[lm.obs_track]
+        return WindowUpdate(**{**update.__dict__, "marginalised": marg, "keyframes": len(self._kf),
+                               "landmarks": int(lm.valid.sum()), "pose_shift_sigmas": shift,
+                               "median_residual_px": float(np.median(lm.residual_px[good])) if good.any()
+                               else float("nan")})
 
     # ------------------------------------------------------------------ optimisation
     def _views(self):
@@ -276,6 +283,14 @@ class LandmarkWindow:
         # the poses are not refined yet (up to ba_relative_sigma_factor x the bound)
         in_graph = mv.valid | ((mv.status == TrackStatus.UNCERTAIN)
                                & (mv.relative_sigma <= s.ba_relative_sigma_factor * s.multiview.max_relative_sigma))
+        if in_graph.sum() > s.ba_max_landmarks:
+            # the refinement needs enough landmarks to fix the poses, not all of them (all are
+            # triangulated afterwards at the refined poses): keep the longest tracks, then
+            # the most certain
+            rows = np.nonzero(in_graph)[0]
+            order = np.lexsort((mv.relative_sigma[rows], -mv.n_inliers[rows]))
+            in_graph = np.zeros_like(in_graph)
+            in_graph[rows[order[: s.ba_max_landmarks]]] = True
         use = mv.inlier & in_graph[mv.obs_track]
         lm_rows = np.nonzero(in_graph)[0]
         for r in lm_rows:
@@ -312,13 +327,8 @@ class LandmarkWindow:
             self._joint_cov = 0.5 * (J + J.T)
         except RuntimeError:
             pass
-        _, lm = self._triangulate()
-        self._landmarks = lm
-        good = lm.inlier & lm.valid[lm.obs_track]
-        return WindowUpdate(new_id, len(self._kf), int(lm.valid.sum()), int(use.sum()), detached, None,
-                            mv.status_counts(), float(before), float(after),
-                            float(np.median(lm.residual_px[good])) if good.any() else float("nan"),
-                            self._pose_shift_sigmas())
+        return WindowUpdate(new_id, len(self._kf), 0, int(use.sum()), detached, None,
+                            mv.status_counts(), float(before), float(after))
 
     def _pose_shift_sigmas(self) -> float:
         p = self.settings.pose_prior

@@ -20,7 +20,7 @@ from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path,
 from .outputs import RunOutputs
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
-from .runner import run_header, run_sequence
+from .runner import backfill_leading_frames, run_header, run_sequence
 from .summary import RunSummary, format_table, summary_of_folder
 from .trajectory import TrajectoryReport, run_trajectory, used_poses
 from .verdict import (
@@ -53,6 +53,7 @@ __all__ = [
     "RunSettings",
     "RunSummary",
     "TrajectoryReport",
+    "backfill_leading_frames",
     "config_from_dict",
     "config_to_dict",
     "dump_config",

@@ -162,7 +162,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         with_depth += res.has_depth
         bar.set_postfix(depth=f"{with_depth}/{i + 1}")
     if settings.backfill and pipeline.points is not None:
-        for i, (frame, res) in _backfill(sequence, pipeline, results, n).items():
+        for i, (frame, res) in backfill_leading_frames(sequence, pipeline, results, n).items():
             res.backfilled = True
             res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
             results[i] = res
@@ -208,7 +208,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     return summary
 
 
-def _backfill(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameResult], n: int) -> dict:
+def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameResult], n: int) -> dict:
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about

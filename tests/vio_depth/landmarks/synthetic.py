@@ -34,12 +34,14 @@ class Scene:
 
 def make_scene(n_frames=24, n_points=600, step_m=0.05, depth=(2.0, 6.0), pixel_sigma=0.7,
                prior_rot_deg=0.0, prior_trans_m=0.0, seed=0, camera: Camera = CAMERA,
-               outlier_fraction=0.0) -> Scene:
+               outlier_fraction=0.0, hold_frames=0, hold_rotation_deg=0.0) -> Scene:
     """A sideways-moving camera (``step_m`` per frame, slight rotation wobble).
 
     Prior errors: each pose gets an independent rotation error of ``prior_rot_deg`` and
     translation error of ``prior_trans_m`` (1-sigma per axis). ``outlier_fraction`` of
-    the observations are moved by 20-60 px (wrong matches).
+    the observations are moved by 20-60 px (wrong matches). ``hold_frames`` more frames
+    follow at the last position (a stop), each turned by ``hold_rotation_deg`` about the
+    vertical axis from the previous one (0: standing still; else a pure rotation).
     """
     rng = np.random.default_rng(seed)
     T_true, T_prior = [], []
@@ -48,7 +50,14 @@ def make_scene(n_frames=24, n_points=600, step_m=0.05, depth=(2.0, 6.0), pixel_s
         T_true.append(make_transform(R, np.array([step_m * k, 0.02 * np.sin(0.5 * k), 0.01 * k])))
         dR = Rotation.from_rotvec(np.radians(prior_rot_deg) * rng.normal(size=3)).as_matrix()
         T_prior.append(make_transform(R @ dR, T_true[-1][:3, 3] + prior_trans_m * rng.normal(size=3)))
+    for _ in range(hold_frames):
+        last = T_true[-1]
+        R = last[:3, :3] @ Rotation.from_rotvec([0.0, np.radians(hold_rotation_deg), 0.0]).as_matrix()
+        T_true.append(make_transform(R, last[:3, 3]))
+        dR = Rotation.from_rotvec(np.radians(prior_rot_deg) * rng.normal(size=3)).as_matrix()
+        T_prior.append(make_transform(R @ dR, last[:3, 3] + prior_trans_m * rng.normal(size=3)))
     T_true, T_prior = np.array(T_true), np.array(T_prior)
+    n_frames = len(T_true)
     mid = T_true[n_frames // 2]
     z = rng.uniform(*depth, n_points)
     uv = np.column_stack([rng.uniform(0, camera.width, n_points), rng.uniform(0, camera.height, n_points)])
