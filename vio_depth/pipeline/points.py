@@ -67,11 +67,13 @@ class TwoViewPoints:
         """Points of ``frame`` (whose ``features`` were just extracted); then maybe keep it as a keyframe.
 
         ``frame_pose``: a tracking pose source's own pose of the frame (None for the others).
-        A frame it gives no pose gets ``no_pose`` with its reason and never becomes a
-        keyframe; a posed frame becomes one when the newest keyframe has no relative pose
-        to it (e.g. it predates the odometry's initialisation).
+        A frame it gives no pose gets ``no_pose`` with its reason, and is kept as a keyframe
+        (the odometry may pose it later, e.g. the frames of its initialisation, and later
+        frames then pair with it); a posed frame becomes one when the newest keyframe has no
+        relative pose to it.
         """
         if frame_pose is not None and not frame_pose.ok:
+            self.buffer.push(Keyframe(frame, features))
             return PointsOutcome(FrameStatus.NO_POSE, frame_pose.reason or "the pose source has no pose for this frame")
         outcome = self._pair_and_triangulate(frame, features)
         self._maybe_add_keyframe(frame, features, frame_pose is not None)

@@ -26,12 +26,13 @@ class VioInitSettings:
     the frame, and so were the images (median keypoint motion below ``still_flow_px``).
 
     Dynamic start (VINS-Mono's idea): at least ``min_keyframes`` frames, each with at least
-    ``min_parallax_px`` of median keypoint motion (rotation removed) after the previous
+    ``min_parallax_deg`` of median keypoint motion (rotation removed) after the previous
     one, spanning at least ``min_duration_s``, are reconstructed up to scale (essential
     matrix, PnP, bundle adjustment) and aligned with the preintegrated IMU for the
     gyroscope bias, the scale, gravity and the velocities. It is tried again on every new
-    keyframe (up to ``max_keyframes`` / ``max_duration_s``, the oldest dropped beyond; a
-    failed reconstruction also drops the oldest) while it is refused:
+    keyframe while it is refused (beyond ``max_duration_s`` the oldest keyframe is dropped,
+    beyond ``max_keyframes`` the one closest in time to its neighbours; a failed
+    reconstruction drops the oldest):
 
     Attributes:
         static: still-interval detection (:class:`~vio_depth.poses.StaticInitSettings`).
@@ -39,7 +40,8 @@ class VioInitSettings:
         lookback_s: IMU seconds before the frame searched for the still interval.
         dynamic: allow the dynamic start.
         min_keyframes / max_keyframes: keyframes of the dynamic start.
-        min_parallax_px: median keypoint motion between two of them, pixels.
+        min_parallax_deg: median keypoint motion between two of them, degrees of view
+            (resolution independent: 1.4 deg is 10 px at a focal length of 420 px).
         min_duration_s / max_duration_s: time they span.
         min_landmarks: fewest reconstructed points (``too few tracks``).
         max_residual_px: largest median reprojection residual of the reconstruction.
@@ -58,19 +60,19 @@ class VioInitSettings:
     dynamic: bool = True
     min_keyframes: int = 6
     max_keyframes: int = 10
-    min_parallax_px: float = 10.0
+    min_parallax_deg: float = 1.4
     min_duration_s: float = 0.6
     max_duration_s: float = 8.0
     min_landmarks: int = 40
     max_residual_px: float = 2.0
     max_gravity_error: float = 1.0
-    max_scale_sigma: float = 0.05
+    max_scale_sigma: float = 0.1
     min_acceleration: float = 0.15
     max_gyro_bias: float = 0.2
     max_scale_change: float = 0.15
 
     def __post_init__(self):
-        positive = ("still_flow_px", "lookback_s", "min_parallax_px", "min_duration_s", "max_duration_s",
+        positive = ("still_flow_px", "lookback_s", "min_parallax_deg", "min_duration_s", "max_duration_s",
                     "max_residual_px", "max_gravity_error", "max_scale_sigma", "max_gyro_bias", "max_scale_change")
         for name in positive:
             v = getattr(self, name)
@@ -93,7 +95,7 @@ def _vio_window() -> LandmarkSettings:
     prior = PosePriorSettings(absolute_rotation_deg=10.0, absolute_translation_m=1.0, relative_rotation_deg=1.0,
                               relative_translation_m=0.1, relative_translation_fraction=0.0,
                               absolute_on_every_keyframe=False)
-    return LandmarkSettings(pose_prior=prior, multiview=MultiviewSettings(pixel_sigma_px=1.0), window_keyframes=10,
+    return LandmarkSettings(pose_prior=prior, multiview=MultiviewSettings(pixel_sigma_px=1.0), window_keyframes=16,
                             keyframe_relative_sigma=0.1, max_keyframe_gap=10, restart_from_priors=False)
 
 

@@ -7,15 +7,16 @@ Frames are offered in order (:meth:`Initializer.process`) until one of the two s
   gyroscope bias from the mean rate) *and* the images are still (median keypoint motion
   since the first frame offered below ``still_flow_px``; an IMU alone cannot tell rest
   from uniform motion). The frame starts the window at rest (velocity zero).
-* **dynamic**: frames with at least ``min_parallax_px`` of median keypoint motion since
+* **dynamic**: frames with at least ``min_parallax_deg`` of median keypoint motion since
   the previous candidate (rotation removed with the gyroscope, so that turning on the
   spot gives no candidates) collect as candidate keyframes; once ``min_keyframes`` of them
   span ``min_duration_s``, they are reconstructed up to scale (:mod:`.sfm`) and aligned
   with the IMU (:mod:`.alignment`), again on every new candidate while that is refused:
   a refused alignment (e.g. too little excitation yet) keeps the candidates, so that the
   start covers the first frames once the motion is rich enough; a failed reconstruction
-  drops the oldest candidate; beyond ``max_keyframes`` / ``max_duration_s`` the oldest is
-  dropped too (VINS-Mono's sliding initialisation).
+  drops the oldest candidate; beyond ``max_duration_s`` the oldest is dropped too (VINS-Mono's
+  sliding initialisation), and beyond ``max_keyframes`` the one closest in time to its
+  neighbours (so that the candidates keep spanning more time).
 
 Every frame offered before success gets a reason (:class:`InitResult`): still waiting
 (how many candidates, how long), or the last refusal.
@@ -216,22 +217,29 @@ class Initializer:
             w.frames = [(cur.frame_id, cur.t)]
             return InitResult(False, reason=f"initialising: {len(m)} matches with the previous candidate "
                                             f"(< {_MIN_MATCHES}), starting over")
+        # the threshold in pixels of this camera (the settings' angle at its focal length)
+        min_px = float(np.radians(s.min_parallax_deg)) * 0.5 * (camera.fx + camera.fy)
         parallax = self._rotation_free_parallax(cur, prev, m)
-        if parallax >= s.min_parallax_px:
+        if parallax >= min_px:
             matches = [FrameMatches.from_matches(prev.frame_id, m)]
             for older in w.candidates[-3:-1][::-1]:
                 matches.append(FrameMatches.from_matches(older.frame_id, self.matcher.match(features, older.features)))
             w.candidates.append(replace(cur, matches=tuple(matches)))
-        while w.candidates and (cur.t - w.candidates[0].t > s.max_duration_s or len(w.candidates) > s.max_keyframes):
+        while w.candidates and cur.t - w.candidates[0].t > s.max_duration_s:
             w.candidates.pop(0)
+        while len(w.candidates) > s.max_keyframes:
+            # thin out, keeping the first and the newest: the span (and with it the IMU's
+            # excitation) keeps growing up to max_duration_s however dense the candidates are
+            gaps = np.diff([c.t for c in w.candidates])
+            w.candidates.pop(1 + int(np.argmin(gaps[:-1] + gaps[1:])))
         w.frames = [(f, ft) for f, ft in w.frames if ft >= w.candidates[0].t]
         span = w.candidates[-1].t - w.candidates[0].t
         waiting = (f"initialising: {len(w.candidates)} of {s.min_keyframes} keyframes over {span:.2f} s "
-                   f"(needs >= {s.min_duration_s} s and {s.min_parallax_px:g} px of parallax between them; "
+                   f"(needs >= {s.min_duration_s} s and {min_px:.1f} px of parallax between them; "
                    "or a still start)")
         if w.last_failure:
             waiting += f"; last attempt: {w.last_failure}"
-        if not (parallax >= s.min_parallax_px and s.dynamic and len(w.candidates) >= s.min_keyframes
+        if not (parallax >= min_px and s.dynamic and len(w.candidates) >= s.min_keyframes
                 and span >= s.min_duration_s):
             return InitResult(False, reason=waiting)
         result = self._dynamic()

@@ -48,6 +48,7 @@ class EpipolarGatedMatcher:
         pb = np.asarray(b.keypoints[m.idx_b], np.float64)
         if self.camera is not None and self.camera.is_distorted:
             pa, pb = self.camera.undistort_points(pa), self.camera.undistort_points(pb)
+        cv2.setRNGSeed(0)  # RANSAC draws from OpenCV's global generator: the same result on every call
         F, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, self.threshold_px, 0.999)
         if F is None or mask is None or F.shape != (3, 3):
             return m

@@ -8,7 +8,8 @@ with ``--poses vio`` they serve only to evaluate the run (ATE / RPE).
 
 A frame handed over again (the offline backward pass of a run walks the first frames in
 reverse) is not re-estimated: it gets the pose the odometry has for it now -- which,
-for the frames of the initialisation, was found only after they were first seen.
+for the frames of the initialisation, was found only after they were first seen (status
+``retroactive``).
 """
 
 from __future__ import annotations
@@ -67,8 +68,10 @@ class VioPoseSource:
             T = self.estimator.history.pose(frame.index)
             if T is not None:
                 old = self._results.get(frame.index)
-                return FramePose(T, None if old is None else old.covariance, True, "tracking",
-                                 "" if old is not None and old.ok else "posed after the initialisation")
+                if old is not None and old.ok:
+                    return FramePose(T, old.covariance, True, old.status, old.reason)
+                return FramePose(T, None, True, "retroactive", "posed by the odometry after this frame was processed "
+                                                               "(its initialisation, or while its scale converged)")
             old = self._results.get(frame.index)
             return old if old is not None else FramePose(None, ok=False, status="unknown",
                                                          reason="frame not tracked by the odometry")

@@ -38,6 +38,7 @@ class VioScene:
     v_w: np.ndarray  # (F, 3) true IMU velocities
     points_w: np.ndarray
     gyro_bias: np.ndarray  # (3,) true initial gyro bias
+    imu_truth_R_w_i: np.ndarray  # (M, 3, 3) true IMU orientation at every IMU sample
     camera: Camera = CAMERA
 
     def path_length(self, upto: int | None = None) -> float:
@@ -135,7 +136,7 @@ def make_scene(duration_s: float = 4.0, rate_hz: float = 20.0, n_points: int = 3
                               (CAMERA.width, CAMERA.height)))
         ids.append(idx)
         frames.append(Frame(k, float(t), f"{k:06d}", CAMERA, T.copy(), load_image=_no_image))
-    return VioScene(frames, feats, ids, imu, T_w_c, st.v_w, points, truth["gyro_bias"][0])
+    return VioScene(frames, feats, ids, imu, T_w_c, st.v_w, points, truth["gyro_bias"][0], traj.state(t_imu).R_w_i)
 
 
 def _no_image():
