@@ -5,7 +5,7 @@ colour camera and registered Kinect depth), per 30-frame bin:
 
 * ``d2d``: median relative error of frame i's Kinect depth moved into frame i-gap with the
   KinectFusion poses against that frame's depth
-  (:func:`vio_depth.metrics.depth_reprojection_errors`): do poses and depth agree?
+  (:func:`vio_depth.evaluation.depth_reprojection_errors`): do poses and depth agree?
 * ``pnp dt`` / ``pnp dR``: difference between the KinectFusion relative pose and the one
   that PnP (RANSAC + LM) finds from frame i's Kinect depth at its keypoints and their
   matches in the colour image of frame i-gap (millimetres / degrees): do poses and
@@ -37,9 +37,9 @@ def main(argv=None) -> int:
 
     from matchers import create_matcher
     from vio_core.geometry import invert_transform, relative_transform, rotation_angle_deg
+    from vio_depth.evaluation import depth_reprojection_errors
+    from vio_depth.evaluation.point_accuracy import window_median_depth
     from vio_depth.io import open_sequence
-    from vio_depth.metrics import depth_reprojection_errors
-    from vio_depth.point_accuracy import window_median_depth
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=REPO / ".." / "shared" / "data")

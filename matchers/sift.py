@@ -25,6 +25,7 @@ match, 0 for one that barely passed the ratio test.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -144,23 +145,33 @@ def ratio_match(desc_a, desc_b, ratio: float = 0.8, mutual: bool = True, block_r
     and the mutual-nearest-neighbour check. Fewer than 2 descriptors on either side ->
     empty matches. Confidence = ``clip(1 - r / ratio, 0, 1)`` with ``r`` the distance ratio
     (worst of both directions when ``mutual``).
+
+    The b -> a direction is computed only for the descriptors of ``b`` that are the nearest
+    neighbour of an ``a`` passing the a -> b test (typically a third of ``b``): the others
+    cannot take part in a match. This gives the same matches as the full
+    :func:`nearest_two` in both directions (tests/matchers/test_sift.py), for about
+    two thirds of its cost.
     """
     if not 0.0 < ratio <= 1.0:
         raise InputError(f"ratio must be in (0, 1], got {ratio}")
     if len(desc_a) < 2 or len(desc_b) < 2:
         return Matches.empty()
-    nn_ab, d_ab, nn_ba, d_ba = nearest_two(desc_a, desc_b, block_rows)
+    a = np.ascontiguousarray(check_array("desc_a", desc_a, (None, None), dtype=np.float32))
+    b = np.ascontiguousarray(check_array("desc_b", desc_b, (None, a.shape[1]), dtype=np.float32))
+    nn_ab, s_ab = _nearest_two_rows(a, b, block_rows)
+    d_ab = np.sqrt(np.maximum(2.0 - 2.0 * s_ab, 0.0))
     tiny = np.float32(1e-12)
-    r_ab = d_ab[:, 0] / np.maximum(d_ab[:, 1], tiny)
-    keep = d_ab[:, 0] < ratio * d_ab[:, 1]
-    r = r_ab
+    r = d_ab[:, 0] / np.maximum(d_ab[:, 1], tiny)
+    idx_a = np.flatnonzero(d_ab[:, 0] < ratio * d_ab[:, 1]).astype(np.int64)
+    r = r[idx_a]
     if mutual:
-        r_ba = (d_ba[:, 0] / np.maximum(d_ba[:, 1], tiny))[nn_ab]
-        keep &= nn_ba[nn_ab] == np.arange(len(nn_ab))
-        keep &= d_ba[nn_ab, 0] < ratio * d_ba[nn_ab, 1]
-        r = np.maximum(r_ab, r_ba)
-    idx_a = np.flatnonzero(keep).astype(np.int64)
-    conf = np.clip(1.0 - r[idx_a] / ratio, 0.0, 1.0).astype(np.float32)
+        cols, inverse = np.unique(nn_ab[idx_a], return_inverse=True)  # the b that can still match
+        nn_ba, s_ba = _nearest_two_rows(np.ascontiguousarray(b[cols]), a, block_rows)
+        d_ba = np.sqrt(np.maximum(2.0 - 2.0 * s_ba, 0.0))[inverse]
+        r_ba = d_ba[:, 0] / np.maximum(d_ba[:, 1], tiny)
+        back = (nn_ba[inverse] == idx_a) & (d_ba[:, 0] < ratio * d_ba[:, 1])
+        idx_a, r = idx_a[back], np.maximum(r, r_ba)[back]
+    conf = np.clip(1.0 - r / ratio, 0.0, 1.0).astype(np.float32)
     return Matches(idx_a, nn_ab[idx_a].astype(np.int64), conf)
 
 
@@ -168,26 +179,30 @@ class SiftMatcher:
     """OpenCV SIFT extraction + ratio/mutual matching (see the module docstring).
 
     ``extract`` runs the detector once per image; ``match`` only compares stored
-    descriptors and never touches the detector.
+    descriptors and never touches the detector. ``extract`` may run in several threads at
+    once (each thread has its own OpenCV detector; OpenCV releases the GIL while it works).
     """
 
     name = "sift"
+    #: ``extract`` is safe to call from several threads at once
+    concurrent_extract = True
 
     def __init__(self, settings: SiftSettings | None = None):
         self.settings = SiftSettings() if settings is None else settings
-        self._sift = None
+        self._local = threading.local()
 
     def _detector(self):
-        if self._sift is None:
+        sift = getattr(self._local, "sift", None)
+        if sift is None:
             s = self.settings
-            self._sift = cv2.SIFT_create(
+            sift = self._local.sift = cv2.SIFT_create(
                 nfeatures=s.max_features,
                 nOctaveLayers=s.n_octave_layers,
                 contrastThreshold=s.contrast_threshold,
                 edgeThreshold=s.edge_threshold,
                 sigma=s.sigma,
             )
-        return self._sift
+        return sift
 
     def extract(self, image) -> Features:
         """SIFT features of ``image: (H, W, 3) uint8 RGB``.

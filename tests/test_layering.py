@@ -86,7 +86,8 @@ def _rank(module: str) -> int:
         if module == prefix or module.startswith(prefix + "."):
             if best is None or len(prefix) > len(best[0]):
                 best = (prefix, rank)
-    assert best is not None, f"{module}: not in the layer table of tests/test_layering.py"
+    assert best is not None and (best[0] != "vio_depth" or module == "vio_depth"), \
+        f"{module}: not in the layer table of tests/test_layering.py"
     return best[1]
 
 

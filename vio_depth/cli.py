@@ -98,6 +98,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     r.add_argument("--uncertainty", action="store_true", default=None,
                    help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
     r.add_argument("--max-depth", type=float, default=None, help="depth cap for evaluation, metres (default 80)")
+    r.add_argument("--no-evaluation", action="store_true", default=None,
+                   help="do not evaluate against the sequence's ground-truth depth (no dense metrics, oracle or "
+                        "point accuracy; faster)")
     o = p.add_argument_group("optional outputs (docs/outputs.md)")
     o.add_argument("--save-npy", action="store_true", default=None,
                    help="also write depth_npy/<stem>.npy: float32 metres, NaN = invalid (exact, no 256 m cap)")
@@ -139,6 +142,9 @@ def _build_parser() -> argparse.ArgumentParser:
                            "and version; the result equals an uninterrupted run)")
     r.add_argument("--format", default=None, help="sequence format (default: auto-detect)")
     _add_settings_flags(r)
+    r.add_argument("--no-overlap", action="store_true",
+                   help="run every stage in one thread, one after the other (same outputs, slower; default: the "
+                        "next frames are prepared and the outputs written in worker threads)")
     r.add_argument("--progress", dest="progress", action="store_true", default=None, help="force a progress bar")
     r.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
 
@@ -200,6 +206,8 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
                                             ("max_eval_depth", args.max_depth)) if v is not None}, where="run")
     if args.no_backfill:
         run = replace(run, backfill=False)
+    if args.no_evaluation:
+        run = replace(run, evaluate=False)
     return s, _exports_from_args(args, run)
 
 
@@ -288,7 +296,7 @@ def _cmd_run(args) -> int:
                             "(expected one <image stem>.npy per frame)")
     try:
         summary = run_sequence(sequence, pipeline, args.out, run, progress=args.progress, command=args.command_line,
-                               mode=mode, inputs=inputs)
+                               mode=mode, inputs=inputs, overlap=not args.no_overlap)
     except (VioDepthError, OSError, KeyboardInterrupt) as exc:
         staging = staging_path(args.out)
         if (staging / JOURNAL_NAME).is_file() and not isinstance(exc, OutputFolderError):

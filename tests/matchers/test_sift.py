@@ -197,3 +197,62 @@ def test_kitti_consecutive_frames():
     pb = fb.keypoints[matches.idx_b].astype(np.float64)
     _, inl = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, 1.0, 0.999)
     assert inl is not None and inl.mean() >= 0.8
+    assert _same_matches(fa.descriptors, fb.descriptors) == len(matches)  # 4000 x 4000 real descriptors
+
+
+def _ratio_match_both_directions(a, b, ratio, mutual, block_rows):
+    """The matcher before issue 11: both directions of nearest_two in full (the reference)."""
+    nn_ab, d_ab, nn_ba, d_ba = nearest_two(a, b, block_rows)
+    tiny = np.float32(1e-12)
+    r = d_ab[:, 0] / np.maximum(d_ab[:, 1], tiny)
+    keep = d_ab[:, 0] < ratio * d_ab[:, 1]
+    if mutual:
+        r_ba = (d_ba[:, 0] / np.maximum(d_ba[:, 1], tiny))[nn_ab]
+        keep &= nn_ba[nn_ab] == np.arange(len(nn_ab))
+        keep &= d_ba[nn_ab, 0] < ratio * d_ba[nn_ab, 1]
+        r = np.maximum(r, r_ba)
+    idx = np.flatnonzero(keep)
+    return idx, nn_ab[idx], np.clip(1.0 - r[idx] / ratio, 0.0, 1.0).astype(np.float32)
+
+
+def _same_matches(a, b, ratio=0.8, mutual=True, block_rows=2048):
+    m = ratio_match(a, b, ratio, mutual, block_rows)
+    idx_a, idx_b, conf = _ratio_match_both_directions(a, b, ratio, mutual, block_rows)
+    np.testing.assert_array_equal(m.idx_a, idx_a)
+    np.testing.assert_array_equal(m.idx_b, idx_b)
+    assert m.confidence.dtype == np.float32 and m.confidence.tobytes() == conf.tobytes()  # bit for bit
+    return len(m)
+
+
+def test_reverse_direction_on_candidates_only_gives_the_full_matchers_matches(astronaut_pair):
+    """ratio_match computes b -> a only for the b that can still match: the matches and their
+    confidences equal those of both full directions, on real images and random descriptors."""
+    m = SiftMatcher()
+    fa, fb = m.extract(astronaut_pair[0]), m.extract(astronaut_pair[1])
+    for block in (2048, 300, 7):
+        assert _same_matches(fa.descriptors, fb.descriptors, block_rows=block) > 50
+        assert _same_matches(fb.descriptors, fa.descriptors, block_rows=block) > 50
+    assert _same_matches(fa.descriptors, fb.descriptors, ratio=1.0) > 50
+    assert _same_matches(fa.descriptors, fb.descriptors, mutual=False) > 50
+    rng = np.random.default_rng(7)
+    for na, nb in ((2, 2), (5, 3000), (2500, 1700), (4000, 4000)):
+        base = rng.random((max(na, nb), 128)) * 255
+        a = normalize_descriptors(base[:na] + rng.random((na, 128)) * 40)
+        b = normalize_descriptors(base[rng.permutation(len(base))[:nb]] + rng.random((nb, 128)) * 40)
+        _same_matches(a, b)
+        _same_matches(np.vstack([a, a[:3]]), np.vstack([b, b[:3]]))  # exact ties: duplicate descriptors
+
+
+def test_extract_in_several_threads_at_once_gives_the_same_features(astronaut_pair):
+    from concurrent.futures import ThreadPoolExecutor
+
+    m = SiftMatcher()
+    images = [astronaut_pair[k % 2][:, 16 * k:] for k in range(6)]
+    alone = [m.extract(im) for im in images]
+    with ThreadPoolExecutor(3) as pool:
+        together = list(pool.map(m.extract, images))
+    assert SiftMatcher.concurrent_extract
+    for a, b in zip(alone, together):
+        assert len(a) > 100
+        np.testing.assert_array_equal(a.keypoints, b.keypoints)
+        np.testing.assert_array_equal(a.descriptors, b.descriptors)

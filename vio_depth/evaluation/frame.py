@@ -6,8 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vio_core.checks import check_array, check_image
+
 from ..rescale import metric_depth
-from .metrics import DepthMetrics, compute_metrics, oracle_fit
+from .metrics import DepthMetrics, _check_range, _gt_mask, metrics_on_pixels, oracle_fit
 from .point_accuracy import PointAccuracy, point_depth_errors
 
 
@@ -41,12 +43,20 @@ def evaluate_frame(gt_depth, depth=None, disparity=None, points_uv=None, points_
     """
     metrics = oracle = acc = None
     if depth is not None:
-        metrics = compute_metrics(depth, gt_depth, min_depth=min_depth, max_depth=max_depth)
+        # as compute_metrics(depth, gt) and compute_metrics(oracle depth, gt), with the mask, the
+        # ground truth and its log computed once and the oracle's depth only where evaluated
+        gt_depth = check_image("gt_depth", gt_depth)
+        depth = check_array("depth", depth, gt_depth.shape)
+        _check_range(min_depth, max_depth)
+        mask = _gt_mask(gt_depth, min_depth, max_depth)
+        g = gt_depth[mask].astype(np.float64)
+        log_g = np.log(g)
+        metrics = metrics_on_pixels(depth[mask], g, log_g, min_depth, max_depth)
         if disparity is not None:
             ofit = oracle_fit(disparity, gt_depth, min_depth=min_depth, max_depth=max_depth)
             if ofit.ok:
-                oracle = compute_metrics(metric_depth(disparity, ofit), gt_depth, min_depth=min_depth,
-                                         max_depth=max_depth)
+                oracle_depth = metric_depth(check_array("disparity", disparity, gt_depth.shape)[mask][None], ofit)[0]
+                oracle = metrics_on_pixels(oracle_depth, g, log_g, min_depth, max_depth)
     if points and points_uv is not None and len(points_uv):
         acc = point_depth_errors(points_uv, points_depth, gt_depth)
     return FrameEvaluation(metrics, oracle, acc)

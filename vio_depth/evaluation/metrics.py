@@ -94,11 +94,23 @@ def compute_metrics(pred, gt, min_depth: float = 1e-3, max_depth: float = 80.0) 
         raise ShapeError(f"pred: shape {pred.shape} differs from gt {gt.shape}")
     _check_range(min_depth, max_depth)
     mask = _gt_mask(gt, min_depth, max_depth)
-    n = int(np.count_nonzero(mask))
+    g = gt[mask].astype(np.float64)
+    return metrics_on_pixels(pred[mask], g, np.log(g), min_depth, max_depth)
+
+
+def metrics_on_pixels(p, g, log_g, min_depth: float, max_depth: float) -> DepthMetrics:
+    """:func:`compute_metrics` on the evaluated pixels only (the ground-truth mask applied
+    once by the caller and shared between several predictions of one frame).
+
+    Args:
+        p: (n,) predicted metres at the evaluated pixels (NaN, inf, <= 0 = no prediction).
+        g: (n,) float64 ground-truth metres there; log_g: ``np.log(g)``.
+        min_depth, max_depth: metres, the evaluated range.
+    """
+    n = len(g)
     if n == 0:
         return DepthMetrics(**_EMPTY)
-    g = gt[mask].astype(np.float64)
-    p = pred[mask].astype(np.float64)
+    p = np.asarray(p).astype(np.float64)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(p) & (p > 0)
     p = np.clip(np.where(valid, p, max_depth), min_depth, max_depth)
@@ -108,7 +120,7 @@ def compute_metrics(pred, gt, min_depth: float = 1e-3, max_depth: float = 80.0) 
         abs_rel=float(np.mean(np.abs(diff) / g)),
         sq_rel=float(np.mean(diff * diff / g)),
         rmse=float(np.sqrt(np.mean(diff * diff))),
-        rmse_log=float(np.sqrt(np.mean((np.log(p) - np.log(g)) ** 2))),
+        rmse_log=float(np.sqrt(np.mean((np.log(p) - log_g) ** 2))),
         delta1=float(np.mean(ratio < 1.25)),
         delta2=float(np.mean(ratio < 1.25**2)),
         delta3=float(np.mean(ratio < 1.25**3)),

@@ -17,7 +17,7 @@ import numpy as np
 from vio_core.checks import check_image
 from vio_core.errors import InputError, SettingsError, UnknownNameError
 
-POINT_SPEC_FORMS = ("sfm", "lidar:<beams>", "random:<count>")
+POINT_SPEC_FORMS = ("sfm", "landmarks", "lidar:<beams>", "random:<count>")
 
 
 def _valid_gt(gt_depth) -> tuple[np.ndarray, np.ndarray]:
@@ -111,7 +111,8 @@ def random_samples(gt_depth, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndar
 
 
 class PointSourceKind(str, enum.Enum):
-    SFM = "sfm"  # triangulated by the structure-from-motion front end
+    SFM = "sfm"  # triangulated by the structure-from-motion front end, two views at a time
+    LANDMARKS = "landmarks"  # multi-view landmarks refined over a keyframe window (gtsam)
     LIDAR = "lidar"  # simulated LiDAR beams from ground truth
     RANDOM = "random"  # random ground-truth samples
 
@@ -140,9 +141,9 @@ class PointSourceSpec:
                 raise UnknownNameError("point source", str(self.kind), [k.value for k in PointSourceKind]) from None
             object.__setattr__(self, "kind", kind)
         forms = ", ".join(POINT_SPEC_FORMS)
-        if kind == PointSourceKind.SFM:
+        if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS):
             if self.count not in (None, 0):
-                raise SettingsError(f"point source 'sfm' takes no count (valid forms: {forms})")
+                raise SettingsError(f"point source '{kind.value}' takes no count (valid forms: {forms})")
             object.__setattr__(self, "count", None)
         elif isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 1:
             what = "beams" if kind == PointSourceKind.LIDAR else "samples"
@@ -153,7 +154,12 @@ class PointSourceSpec:
 
     @property
     def uses_ground_truth(self) -> bool:
-        return self.kind != PointSourceKind.SFM
+        return self.kind in (PointSourceKind.LIDAR, PointSourceKind.RANDOM)
+
+    @property
+    def triangulated(self) -> bool:
+        """Points from the images (``sfm``, ``landmarks``), not sampled from ground truth."""
+        return not self.uses_ground_truth
 
     def __str__(self) -> str:
         return self.kind.value if self.count is None else f"{self.kind.value}:{self.count}"
@@ -169,7 +175,8 @@ class PointSourceSpec:
             return lidar_beams(gt_depth, self.count)
         if self.kind == PointSourceKind.RANDOM:
             return random_samples(gt_depth, self.count, self.seed + frame_index)
-        raise InputError("the 'sfm' point source is triangulated by the pipeline, not sampled from ground truth")
+        raise InputError(f"the {self.kind.value!r} point source is triangulated by the pipeline, "
+                         "not sampled from ground truth")
 
 
 def parse_points_spec(spec: str, seed: int = 0) -> PointSourceSpec:
@@ -186,9 +193,9 @@ def parse_points_spec(spec: str, seed: int = 0) -> PointSourceSpec:
         kind = PointSourceKind(name)
     except ValueError:
         raise UnknownNameError("point source", str(spec), POINT_SPEC_FORMS) from None
-    if kind == PointSourceKind.SFM:
+    if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS):
         if sep:
-            raise SettingsError(f"point source {spec!r}: 'sfm' takes no count (valid forms: {forms})")
+            raise SettingsError(f"point source {spec!r}: '{kind.value}' takes no count (valid forms: {forms})")
         return PointSourceSpec(kind, seed=seed)
     if not sep or not count_text.strip().isdigit():
         what = "beams" if kind == PointSourceKind.LIDAR else "samples"

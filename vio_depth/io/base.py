@@ -38,6 +38,10 @@ class Sequence(abc.ABC):
     format_name: str = ""
     #: why ``imu`` is None, for error messages ("" = the folder has no IMU data)
     imu_missing_reason: str = ""
+    #: what kind of poses the dataset gives, for how far to trust them (a
+    #: :data:`vio_depth.landmarks.POSE_PRIOR_PRESETS` name: ``exact``, ``mocap``,
+    #: ``kinectfusion``, ``ins``); loaders override it
+    pose_kind: str = "mocap"
 
     def __init__(self, root: Path, name: str, camera: Camera, imu: ImuData | None = None,
                  disparity: DisparitySpec | None = None):

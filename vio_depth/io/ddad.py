@@ -357,6 +357,7 @@ class DdadSequence(Sequence):
     """
 
     format_name = "ddad"
+    pose_kind = "ins"
 
     def __init__(self, path, settings: DdadSettings = DdadSettings()):
         self.settings = settings

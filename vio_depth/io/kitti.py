@@ -143,6 +143,7 @@ class KittiRawSequence(Sequence):
     """
 
     format_name = "kitti_raw"
+    pose_kind = "ins"
 
     def __init__(self, path, settings: KittiSettings = KittiSettings()):
         drive = find_kitti_drive(path)

@@ -322,6 +322,11 @@ class NativeSequence(Sequence):
         return len(self.timestamps)
 
     @property
+    def pose_kind(self) -> str:
+        """``exact`` for a SIMULATED (rendered) sequence, else ``mocap`` (see :class:`Sequence`)."""
+        return "exact" if self.metadata.get("simulated") is True else "mocap"
+
+    @property
     def has_gt_depth(self) -> bool:
         return self._depth_folder is not None
 

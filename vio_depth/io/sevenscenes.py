@@ -138,6 +138,7 @@ class SevenScenesSequence(Sequence):
     """
 
     format_name = "7scenes"
+    pose_kind = "kinectfusion"
 
     def __init__(self, path, settings: SevenScenesSettings = SevenScenesSettings()):
         folder = Path(path)

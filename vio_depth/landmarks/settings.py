@@ -21,7 +21,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 from triangulation.multiview import MultiviewSettings
-from vio_core.errors import SettingsError, lookup
+from vio_core.errors import SettingsError
+from vio_core.settings import Presets
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,7 @@ class PosePriorSettings:
 #: Pose-prior presets by dataset kind. "exact": rendered sequences (sample_sequences);
 #: "mocap": motion capture (EuRoC Vicon, TUM); "kinectfusion": 7-Scenes; "ins": KITTI OXTS;
 #: "imu": only the first keyframe is anchored, a MotionFactorSource must add the rest.
-POSE_PRIOR_PRESETS: dict[str, PosePriorSettings] = {
+POSE_PRIOR_PRESETS: Presets = Presets("pose prior preset", {
     # rendered: exact up to float noise
     "exact": PosePriorSettings(0.01, 0.001, 0.005, 0.0002, 0.001),
     # Vicon/OptiTrack marker poses mapped to the camera: not measured here (a stated guess)
@@ -92,7 +93,13 @@ POSE_PRIOR_PRESETS: dict[str, PosePriorSettings] = {
     # KITTI OXTS (RTK GPS/INS): absolute metres, relative cm
     "ins": PosePriorSettings(0.1, 0.3, 0.05, 0.02, 0.01),
     "imu": PosePriorSettings(0.01, 0.001, 1.0, 0.1, 0.0, absolute_on_every_keyframe=False),
-}
+}, default="exact", descriptions={
+    "exact": "rendered sequences (the bundled samples)",
+    "mocap": "motion capture (EuRoC Vicon, TUM): a stated guess",
+    "kinectfusion": "7-Scenes KinectFusion poses: ~1 cm jitter, tight rotations",
+    "ins": "KITTI OXTS RTK GPS/INS: absolute metres, relative cm",
+    "imu": "first keyframe anchored only; IMU factors carry the rest",
+})
 
 
 def pose_prior_preset(name: str, **overrides) -> PosePriorSettings:
@@ -101,7 +108,7 @@ def pose_prior_preset(name: str, **overrides) -> PosePriorSettings:
     Raises:
         UnknownNameError: unknown name (lists the valid ones).
     """
-    return replace(lookup("pose prior preset", name, POSE_PRIOR_PRESETS), **overrides)
+    return replace(POSE_PRIOR_PRESETS[name], **overrides)
 
 
 @dataclass(frozen=True)
@@ -109,7 +116,10 @@ class LandmarkSettings:
     """Everything that shapes the landmark estimator (one default for indoors and outdoors).
 
     Attributes:
-        pose_prior: :class:`PosePriorSettings` of the sequence's poses.
+        pose_prior: :class:`PosePriorSettings` of the sequence's poses, or None (the
+            default): the preset of the sequence's kind of poses (``Sequence.pose_kind``:
+            ``exact`` for rendered samples, ``ins`` for KITTI, ``kinectfusion`` for
+            7-Scenes, ``mocap`` for TUM, EuRoC and other native sequences).
         multiview: track triangulation and qualification (:class:`MultiviewSettings`):
             pixel sigma, residual gate in sigmas, ``max_relative_sigma``.
         window_keyframes: keyframes kept in the window; the oldest is marginalised
@@ -139,7 +149,7 @@ class LandmarkSettings:
             not refined (its prior is used) and it is reported.
     """
 
-    pose_prior: PosePriorSettings = field(default_factory=lambda: POSE_PRIOR_PRESETS["exact"])
+    pose_prior: PosePriorSettings | None = None
     multiview: MultiviewSettings = field(default_factory=MultiviewSettings)
     window_keyframes: int = 16
     match_keyframes: int = 3
@@ -170,6 +180,11 @@ class LandmarkSettings:
             raise SettingsError("max_keyframe_gap and lm_max_iterations must be >= 1, query_max_iterations >= 0")
         if self.min_query_points < 3:
             raise SettingsError("min_query_points must be >= 3")
+
+    def resolved(self, pose_kind: str) -> "LandmarkSettings":
+        """These settings with the pose prior of ``pose_kind`` (a :data:`POSE_PRIOR_PRESETS`
+        name) when ``pose_prior`` is None (the default), else unchanged."""
+        return self if self.pose_prior is not None else replace(self, pose_prior=POSE_PRIOR_PRESETS[pose_kind])
 
     @classmethod
     def for_poses(cls, kind: str, **overrides) -> "LandmarkSettings":

@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 from triangulation.multiview import MultiviewPoints, TrackStatus, depth_in_view, triangulate_tracks
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
-from vio_core.errors import InputError
+from vio_core.errors import InputError, SettingsError
 from vio_core.geometry import invert_transform
 
 from .resection import refine_pose
@@ -79,6 +79,9 @@ class LandmarkWindow:
         self._gtsam = gtsam
         self.settings = settings
         self.motion_factors = motion_factors
+        if settings.pose_prior is None:
+            raise SettingsError("LandmarkSettings.pose_prior is not resolved: use settings.resolved(pose_kind) "
+                                "(the pipeline takes the sequence's kind of poses)")
         if motion_factors is None and not settings.pose_prior.absolute_on_every_keyframe:
             raise InputError("landmarks: pose priors on the first keyframe only need a MotionFactorSource (IMU)")
         self.tracks = TrackTable()

@@ -4,17 +4,19 @@
 module             job
 =================  ============================================================================
 ``status``         :class:`FrameStatus`, :class:`PairStatus`, :func:`decide_frame_status`
-``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`
+``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`, :class:`PreparedFrame`
 ``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
+``landmark_points`` :class:`LandmarkPointsStage`: multi-view landmarks over a keyframe window
 ``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML)
-``pipeline``       :class:`Pipeline` (``process(frame)``)
+``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
 ``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
 =================  ============================================================================
 """
 
+from .landmark_points import LandmarkPointsStage
 from .pipeline import Pipeline
 from .points import TwoViewPoints, most_certain_per_keypoint
-from .result import PIPELINE_STAGES, FrameResult, PairAttempt, PointsOutcome
+from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import PRESET_FAMILIES, PipelineSettings
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
@@ -25,11 +27,14 @@ __all__ = [
     "FrameResult",
     "FrameStatus",
     "FrameStream",
+    "LandmarkInfo",
+    "LandmarkPointsStage",
     "PairAttempt",
     "PairStatus",
     "Pipeline",
     "PipelineSettings",
     "PointsOutcome",
+    "PreparedFrame",
     "TwoViewPoints",
     "decide_frame_status",
     "most_certain_per_keypoint",

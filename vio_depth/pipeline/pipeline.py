@@ -11,16 +11,17 @@ import logging
 import time
 from dataclasses import replace
 
-from matchers import Matcher, create_matcher
-from vio_core.errors import InputError
+from matchers import Features, Matcher, create_matcher
+from vio_core.errors import InputError, SettingsError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
 from ..frame import Frame
-from ..poses import PoseSource, TrackingPoseSource, VioSettings, create_pose_source
+from ..poses import GroundTruthPoses, PoseSource, TrackingPoseSource, VioSettings, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
+from .landmark_points import LandmarkPointsStage
 from .points import TwoViewPoints
-from .result import FrameResult, PointsOutcome
+from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
 
@@ -46,11 +47,12 @@ class Pipeline:
         self.settings = settings = PipelineSettings() if settings is None else settings
         self.sequence = sequence
         sfm = settings.points.kind == PointSourceKind.SFM
+        landmarks = settings.points.kind == PointSourceKind.LANDMARKS
         tracking = isinstance(pose_source, TrackingPoseSource) or (
             pose_source is None and isinstance(settings.poses, VioSettings))
         if matcher is None and tracking and pose_source is not None:
             matcher = pose_source.matcher
-        if matcher is None and (sfm or tracking):
+        if matcher is None and (sfm or landmarks or tracking):
             matcher = create_matcher(settings.matcher)
         self._matcher = matcher
         self.pose_source = create_pose_source(settings.poses, sequence, matcher) if pose_source is None else pose_source
@@ -67,6 +69,13 @@ class Pipeline:
         if sfm:
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
                                         settings.min_matches)
+        elif landmarks:
+            if not isinstance(self.pose_source, GroundTruthPoses):
+                raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
+                                    f"the {self.pose_source.name!r} pose source gives no absolute poses with "
+                                    "uncertainty to use as priors")
+            self.points = LandmarkPointsStage(matcher, settings.landmarks.resolved(getattr(sequence, "pose_kind",
+                                                                                           "mocap")))
 
     @property
     def matcher(self) -> Matcher | None:
@@ -81,11 +90,21 @@ class Pipeline:
     # ------------------------------------------------------------------ per frame
     def process(self, frame: Frame) -> FrameResult:
         """Process the next frame of the stream and return its result (with ``depth``)."""
+        return self.process_prepared(self.prepare(frame))
+
+    def prepare(self, frame: Frame, features: Features | None = None) -> PreparedFrame:
+        """The frame's stateless stages: image decoding, features, disparity.
+
+        They read nothing of the pipeline's state (keyframes, filter), so frames may be
+        prepared ahead of :meth:`process_prepared`, in other threads (several at once when
+        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread). ``features``: this
+        frame's features extracted earlier by the same matcher (the image is then not read
+        here).
+        """
         timings: dict[str, float] = {}
         clock = time.perf_counter
-        features = None
         matcher = self.matcher
-        if matcher is not None:
+        if matcher is not None and features is None:
             t = clock()
             image = frame.image()  # read once: a model disparity source gets the same pixels
             frame = replace(frame, load_image=lambda: image)
@@ -93,19 +112,29 @@ class Pipeline:
             t = clock()
             features = matcher.extract(image)  # once per frame, kept if keyframe
             timings["features"] = clock() - t
+        t = clock()
+        disparity = self.disparity_source(frame)
+        timings["disparity"] = clock() - t
+        return PreparedFrame(frame, features, disparity, timings)
+
+    def process_prepared(self, prepared: PreparedFrame) -> FrameResult:
+        """The stateful stages of a :meth:`prepare`-d frame, in stream order: tracking (a
+        tracking pose source), pairing, triangulation, fit, depth. ``process(frame)`` is
+        ``process_prepared(prepare(frame))``."""
+        frame, features, disparity = prepared.frame, prepared.features, prepared.disparity
+        timings = dict(prepared.timings)
+        clock = time.perf_counter
         frame_pose = None
         if self.tracker is not None:  # the odometry sees every frame, in order, before any relative pose
             t = clock()
             frame_pose = self.tracker.track(frame, features)
             timings["poses"] = clock() - t
         t = clock()
-        disparity = self.disparity_source(frame)
-        timings["disparity"] = clock() - t
-
-        t = clock()
         spec = self.settings.points
-        if self.points is not None:
+        if isinstance(self.points, TwoViewPoints):
             points = self.points.process(frame, features, frame_pose)
+        elif self.points is not None:
+            points = self.points.process(frame, features)
         else:
             gt = frame.gt_depth()
             if gt is None:
@@ -114,6 +143,7 @@ class Pipeline:
                 uv, depth = spec.sample(gt, frame.index)
                 points = PointsOutcome(FrameStatus.OK, "", uv=uv, depth=depth)
         timings["points"] = clock() - t
+        timings.update(points.timings)
 
         result = FrameResult(frame.index, frame.stem, frame.timestamp, points.status, points.reason, spec, points,
                              timings=timings, frame_pose=frame_pose)

@@ -8,6 +8,8 @@ the valid points of all pairs, keeping each keypoint's most certain depth.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from matchers import Features, Matcher
@@ -105,17 +107,23 @@ class TwoViewPoints:
             candidates, is_weak = [best], True
 
         attempts, merged = [], []  # merged: (current keypoint indices, valid TriangulatedPoints) per pair
+        clock = time.perf_counter
+        timings = {"matching": 0.0, "triangulation": 0.0}
         for kf, rel, motion in candidates:
+            t = clock()
             m = self.matcher.match(features, kf.features)
+            timings["matching"] += clock() - t
             if len(m) < self.min_matches:
                 attempts.append(PairAttempt(kf.frame.index, motion, len(m), PairStatus.TOO_FEW_MATCHES,
                                             T_kf_cur=rel.T_kf_cur))
                 continue
+            t = clock()
             pts = triangulate_pair(
                 features.keypoints[m.idx_a], kf.features.keypoints[m.idx_b],
                 frame.camera, kf.frame.camera, rel.T_kf_cur, self.triangulation,
                 confidence=m.confidence, pose_covariance=rel.covariance,
             )
+            timings["triangulation"] += clock() - t
             valid = pts.valid
             n_valid = int(valid.sum())
             attempts.append(PairAttempt(kf.frame.index, motion, len(m),
@@ -124,7 +132,7 @@ class TwoViewPoints:
             if n_valid:
                 merged.append((m.idx_a[valid], pts.subset(valid)))
 
-        outcome = PointsOutcome(FrameStatus.OK, "", attempts, is_weak)
+        outcome = PointsOutcome(FrameStatus.OK, "", attempts, is_weak, timings=timings)
         if not merged:
             counts = outcome.point_status
             too_few = all(a.status == PairStatus.TOO_FEW_MATCHES for a in attempts)

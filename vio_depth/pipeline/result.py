@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from matchers import Features
+
 from ..evaluation import PointSourceSpec
+from ..frame import Frame
 from ..keyframes import Motion
 from ..poses import FramePose
 from ..rescale import AffineFit, RescaleResult
@@ -46,6 +49,32 @@ class PairAttempt:
         return ""
 
 
+@dataclass(frozen=True)
+class LandmarkInfo:
+    """What the landmark window did for a frame (``--points landmarks``).
+
+    Attributes:
+        keyframe: the frame became a keyframe; ``keyframe_reason`` says why.
+        matches: feature matches with the window's newest keyframes.
+        associated: keypoints associated with a landmark.
+        pose_refined: the frame's pose was refined against the landmarks (or by the window).
+        window_keyframes: keyframes in the window after this frame.
+        window_residual_px: median reprojection residual of the window's landmarks after
+            its refinement (keyframes only), pixels.
+        pose_shift_sigmas: largest move of a keyframe pose from its prior in that refinement,
+            in prior sigmas (keyframes only): large values mean the images and the poses disagree.
+    """
+
+    keyframe: bool
+    keyframe_reason: str
+    matches: int
+    associated: int
+    pose_refined: bool
+    window_keyframes: int
+    window_residual_px: float | None = None
+    pose_shift_sigmas: float | None = None
+
+
 @dataclass
 class PointsOutcome:
     """The metric points of one frame and how they were obtained.
@@ -60,6 +89,10 @@ class PointsOutcome:
         depth: (N,) metres, z in this camera.
         sigma: (N,) metres, 1-sigma of ``depth``, or None (reference points: exact).
         confidence: (N,) matching confidence in [0, 1], or None.
+        landmarks: what the landmark window did (``--points landmarks``), else None.
+        T_w_c: (4, 4) camera-to-world pose of the frame as the stage used it (the landmark
+            window's refined pose), or None when the stage used relative poses only.
+        timings: seconds of ``matching`` and ``triangulation``, summed over the pairs.
     """
 
     status: FrameStatus
@@ -70,6 +103,9 @@ class PointsOutcome:
     depth: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
     confidence: np.ndarray | None = field(default=None, repr=False)
+    landmarks: LandmarkInfo | None = None
+    T_w_c: np.ndarray | None = field(default=None, repr=False)
+    timings: dict[str, float] = field(default_factory=dict, repr=False)
 
     @property
     def partners(self) -> list[int]:
@@ -77,7 +113,7 @@ class PointsOutcome:
 
     @property
     def matches(self) -> int:
-        return sum(a.matches for a in self.attempts)
+        return self.landmarks.matches if self.landmarks is not None else sum(a.matches for a in self.attempts)
 
     @property
     def motion(self) -> Motion | None:
@@ -122,6 +158,8 @@ class FrameResult:
         disparity_valid_fraction: fraction of finite pixels of the disparity map (None
             without a map).
         frame_pose: the tracking pose source's own pose of the frame (``--poses vio``), or None.
+        depth_released: the frame had a depth map that :meth:`without_maps` released
+            (``has_depth`` stays True).
     """
 
     frame: int
@@ -143,10 +181,16 @@ class FrameResult:
     backfilled: bool = False
     disparity_valid_fraction: float | None = None
     frame_pose: FramePose | None = field(default=None, repr=False)
+    depth_released: bool = field(default=False, repr=False)
 
     @property
     def has_depth(self) -> bool:
-        return self.depth is not None
+        return self.depth is not None or self.depth_released
+
+    def without_maps(self) -> "FrameResult":
+        """A copy without the (H, W) depth and disparity maps, for keeping every frame's result
+        over a long run in constant memory per frame (points, fit and statuses are kept)."""
+        return replace(self, depth=None, disparity=None, depth_released=self.has_depth)
 
     @property
     def fit(self) -> AffineFit | None:
@@ -159,5 +203,27 @@ class FrameResult:
         return sum(v for k, v in self.timings.items() if k in PIPELINE_STAGES)
 
 
-#: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself
+#: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself (``points`` includes its
+#: sub-stages ``matching`` and ``triangulation``, also recorded; ``poses``: a tracking pose source)
 PIPELINE_STAGES = ("image", "disparity", "features", "poses", "points", "fit", "depth")
+
+
+@dataclass
+class PreparedFrame:
+    """A frame after the pipeline's stateless stages (:meth:`~vio_depth.pipeline.Pipeline.prepare`):
+    image decoding, feature extraction and the disparity map. They depend on nothing but the
+    frame, so they may run ahead of :meth:`~vio_depth.pipeline.Pipeline.process_prepared`,
+    in another thread.
+
+    Attributes:
+        frame: the frame; when its image was read, ``frame.image()`` returns the decoded
+            pixels without reading them again.
+        features: the frame's features (SfM points), else None.
+        disparity: (H, W) float affine-invariant disparity, or None (no map for this frame).
+        timings: seconds of the stages done: ``image``, ``features``, ``disparity``.
+    """
+
+    frame: Frame
+    features: Features | None
+    disparity: np.ndarray | None = field(repr=False)
+    timings: dict[str, float] = field(default_factory=dict)

@@ -28,6 +28,7 @@ from vio_core.settings import Presets, override, to_plain
 from ..disparity import DisparitySettings
 from ..evaluation import PointSourceSpec, parse_points_spec
 from ..keyframes import PAIRING_PRESETS, PairingSettings
+from ..landmarks import LandmarkSettings
 from ..poses import POSE_PRESETS, PoseSettings
 from ..rescale import RESCALER_PRESETS, RescalerSettings
 
@@ -43,8 +44,12 @@ class PipelineSettings:
         pairing: keyframe and pair selection (``kitti``, ``ddad``, ``indoor``).
         triangulation: per-point checks (:class:`triangulation.TriangulationSettings`).
         rescaler: robust fit, fallbacks and temporal filter (``streaming``, ``per_frame``, ``paper``).
-        points: where the metric points come from (``sfm``, or a reference source
-            ``lidar:N`` / ``random:N`` sampled from ground truth).
+        points: where the metric points come from: ``sfm`` (two-view triangulation with
+            keyframes), ``landmarks`` (multi-view landmarks refined over a keyframe window,
+            :mod:`vio_depth.landmarks`), or a reference source ``lidar:N`` / ``random:N``
+            sampled from ground truth.
+        landmarks: the landmark window (``points = "landmarks"``); its pose prior is None by
+            default: the preset of the sequence's kind of poses.
         disparity: where the disparity comes from (the sequence's own, files, SIMULATED, a model).
         min_matches: fewer matches than this in a pair -> it is not triangulated.
     """
@@ -55,6 +60,7 @@ class PipelineSettings:
     triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
     rescaler: RescalerSettings = field(default_factory=RescalerSettings)
     points: PointSourceSpec = field(default_factory=PointSourceSpec)
+    landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
     disparity: DisparitySettings = field(default_factory=DisparitySettings)
     min_matches: int = 20
 

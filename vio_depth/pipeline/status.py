@@ -26,6 +26,7 @@ class FrameStatus(str, enum.Enum):
     TOO_FEW_POINTS = "too_few_points"
     ILL_CONDITIONED = "ill_conditioned"
     NO_CONSENSUS = "no_consensus"
+    UNCERTAIN_FIT = "uncertain_fit"  # the fit's predicted error exceeds the stated bound
     NO_DISPARITY = "no_disparity"
     INVALID_DISPARITY = "invalid_disparity"  # a map that cannot give depth (vio_depth.disparity.validity)
 
@@ -51,6 +52,7 @@ _FROM_FIT_STATUS = {
     FitStatus.TOO_FEW_POINTS: FrameStatus.TOO_FEW_POINTS,
     FitStatus.ILL_CONDITIONED: FrameStatus.ILL_CONDITIONED,
     FitStatus.NO_CONSENSUS: FrameStatus.NO_CONSENSUS,
+    FitStatus.OK: FrameStatus.UNCERTAIN_FIT,  # a good line whose predicted error is above the bound
 }
 
 

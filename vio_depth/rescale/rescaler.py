@@ -51,6 +51,12 @@ class RescalerSettings:
             :class:`KalmanSettings` without a filter) is at most this. 0.10: on the samples
             and 7-Scenes (SIMULATED disparity) the fallback frames it admits measured AbsRel
             <= 0.10; beyond it errors grow to 0.2-0.3 (docs/safety.md).
+        max_fit_error: the same bound for this frame's own fit: a fit whose predicted
+            relative depth error (from its covariance: few points, narrow spread, a poor
+            line) exceeds it does not give the frame status ``ok``; the fallbacks are tried
+            instead, and without one the frame has no depth (status ``uncertain_fit``).
+            The covariance sees the points' scatter, not a bias they share (e.g. poses
+            inconsistent with the images): docs/benchmarks.md, "Landmarks".
     """
 
     ransac: RansacSettings = RansacSettings()
@@ -58,13 +64,14 @@ class RescalerSettings:
     max_fallback_age: int = 10
     temporal: KalmanSettings | None = KalmanSettings()
     max_fallback_error: float = 0.10
+    max_fit_error: float = 0.10
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
-        if not self.max_fallback_error > 0:
-            raise SettingsError(f"RescalerSettings.max_fallback_error must be > 0 (relative), "
-                                f"got {self.max_fallback_error!r}")
+        for name in ("max_fallback_error", "max_fit_error"):
+            if not getattr(self, name) > 0:
+                raise SettingsError(f"RescalerSettings.{name} must be > 0 (relative), got {getattr(self, name)!r}")
 
 
 #: Named rescaler presets (``[rescaler] preset = ...`` in a config file).
@@ -93,8 +100,9 @@ class RescaleResult:
         filtered: the filter's output for this frame when the filter is on, else None.
         age: frames between this frame and the one whose fit is used (0 = this frame).
         reason: why this stage was chosen (joined reasons of the failed stages).
-        predicted_error: for a fallback (used or refused), its predicted relative depth
-            error (see ``RescalerSettings.max_fallback_error``); None otherwise.
+        predicted_error: the predicted relative depth error of the fit used or refused:
+            this frame's own (``RescalerSettings.max_fit_error``) or a fallback's
+            (``max_fallback_error``); None when there was no fit to judge.
     """
 
     source: FitSource
@@ -227,18 +235,24 @@ class Rescaler:
         if self._filter is not None:
             estimate = self._filter.step(raw if anchors is not None else None, anchors)
 
+        reasons = [f"fit {raw.status.value}: {raw.reason}"]
+        own_error = None
         if raw.ok:
             used = raw
             reason = raw.reason
             if estimate is not None and anchors is not None:
                 used = replace(raw, alpha=estimate.alpha, beta=estimate.beta, covariance=estimate.covariance)
                 reason = f"{raw.reason}; filter: {estimate.reason}"
-            self._last_ok_frame = self._frame
-            self._last_ok_fit = used
-            self._use(used, anchors, disparity_map)
-            return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason)
-
-        reasons = [f"fit {raw.status.value}: {raw.reason}"]
+            error = self._predicted_error(used, disparity_map, anchors)
+            if error <= s.max_fit_error:
+                self._last_ok_frame = self._frame
+                self._last_ok_fit = used
+                self._use(used, anchors, disparity_map)
+                return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason,
+                                     predicted_error=error)
+            own_error = error
+            reasons = [f"fit uncertain: predicted relative depth error {error:.3g} > max_fit_error "
+                       f"{s.max_fit_error:g}"]
         age_ok = None if self._last_ok_frame is None else self._frame - self._last_ok_frame
         if not s.fallback:
             reasons.append("fallbacks disabled")
@@ -268,7 +282,8 @@ class Rescaler:
                 return RescaleResult(FitSource.PREVIOUS_FIT, used, raw, scale_only=scale, filtered=estimate,
                                      age=age, reason="; ".join(reasons), predicted_error=error)
             return self._refused(raw, scale, estimate, age, error, reasons)
-        return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason="; ".join(reasons))
+        return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason="; ".join(reasons),
+                             predicted_error=own_error)
 
     def _carried(self, age: int, disparity_map) -> tuple[AffineFit, str]:
         """The last used fit for this frame, and how it was obtained (for the reason)."""

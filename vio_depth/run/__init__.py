@@ -5,6 +5,8 @@ module             job
 =================  ============================================================================
 ``config``         :class:`RunSettings`, TOML config files (``--config``, ``config --dump``)
 ``runner``         :func:`run_sequence`: the frame loop, the offline backfill
+``overlap``        :class:`Prefetcher`, :class:`OrderedWriter`: the worker threads of a run
+``timing``         :func:`timing_summary`: per-stage timings in ``metrics.json``
 ``outputs``        :class:`RunOutputs`: depth PNGs, ``frames.jsonl``, ``metrics.json``
 ``record``         :class:`FrameRecord`, :class:`RunHeader` (docs/frames_schema.md)
 ``summary``        :class:`RunSummary`, the printed table
@@ -18,10 +20,12 @@ module             job
 from .config import RunSettings, config_from_dict, config_to_dict, dump_config, load_config
 from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path, staging_path
 from .outputs import RunOutputs
+from .overlap import OrderedWriter, Prefetcher
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
 from .runner import backfill_leading_frames, run_header, run_sequence
 from .summary import RunSummary, format_table, summary_of_folder
+from .timing import timing_summary
 from .trajectory import TrajectoryReport, run_trajectory, used_poses
 from .verdict import (
     EXIT_ERROR,
@@ -41,9 +45,11 @@ __all__ = [
     "EXIT_OK",
     "EXIT_USAGE",
     "MIN_DEPTH_FRACTION",
+    "OrderedWriter",
     "OutputFolder",
     "OutputFolderError",
     "OutputMode",
+    "Prefetcher",
     "RECORD_SCHEMA_VERSION",
     "ResumeError",
     "RunVerdict",
@@ -67,6 +73,7 @@ __all__ = [
     "judge_run",
     "staging_path",
     "summary_of_folder",
+    "timing_summary",
     "run_trajectory",
     "used_poses",
 ]

@@ -52,6 +52,9 @@ class RunSettings:
         min_depth_fraction: a finished run in which fewer than this fraction of the processed
             frames got metric depth is reported as "nothing came out" (``vio-depth run``
             exits with code 3; :mod:`vio_depth.run.verdict`).
+        evaluate: evaluate each frame against the sequence's ground-truth depth, when it has
+            some (dense metrics, oracle, point accuracy); False skips that work
+            (``--no-evaluation``).
     """
 
     max_frames: int = 0
@@ -63,6 +66,7 @@ class RunSettings:
     export: ExportSettings = field(default_factory=ExportSettings)
     report: bool = False
     min_depth_fraction: float = MIN_DEPTH_FRACTION
+    evaluate: bool = True
 
     def __post_init__(self):
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:

@@ -26,8 +26,8 @@ class RunOutputs:
     Layout: ``depth/<stem>.png`` (uint16, metres x 256, 0 = invalid), with ``uncertainty``
     also ``uncertainty/<stem>.png`` (1-sigma of the depth from the fit's covariance, same
     encoding), ``frames.jsonl``, ``trajectory.tum`` (the camera poses the run used, TUM
-    format, camera-to-world: :mod:`vio_depth.run.trajectory`) and, with ground-truth depth
-    or poses, ``metrics.json``.
+    format, camera-to-world: :mod:`vio_depth.run.trajectory`) and ``metrics.json``. The PNGs
+    are encoded for speed (:data:`~vio_depth.io.depth_png.FAST_PNG_PARAMS`).
     """
 
     def __init__(self, out_dir, *, uncertainty: bool = False):
@@ -42,9 +42,10 @@ class RunOutputs:
         """The frame's depth PNG (and 1-sigma PNG); nothing for a frame without depth."""
         if result.depth is None:
             return
-        write_depth_png(self.depth_dir / f"{result.stem}.png", result.depth)
+        write_depth_png(self.depth_dir / f"{result.stem}.png", result.depth, fast=True)
         if self.sigma_dir is not None:
-            write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit))
+            write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit),
+                            fast=True)
 
     def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None,
                trajectory: CameraTrajectory | None = None) -> None:

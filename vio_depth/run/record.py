@@ -51,6 +51,11 @@ class FrameRecord:
     matches: int = 0
     triangulated_points: int = 0
     point_status: dict[str, int] | None = None
+    keyframe: bool | None = None
+    keyframe_reason: str | None = None
+    landmarks_associated: int | None = None
+    window_residual_px: float | None = None
+    pose_shift_sigmas: float | None = None
     points_sampled: int = 0
     inliers: int = 0
     alpha: float | None = None
@@ -66,9 +71,10 @@ class FrameRecord:
     points_evaluated: int | None = None
     points_rel_err_median: float | None = None
     points_rel_err_p90: float | None = None
+    points_rel_err_bias: float | None = None
     backfilled: bool | None = None
     disparity_valid_fraction: float | None = None
-    fallback_predicted_error: float | None = None
+    predicted_error: float | None = None
     pose_status: str | None = None
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
@@ -111,6 +117,13 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         seconds=round(result.seconds, 4),
         timings={k: round(v, 5) for k, v in result.timings.items()},
     )
+    if points.landmarks is not None:
+        info = points.landmarks
+        rec.keyframe = info.keyframe
+        rec.keyframe_reason = info.keyframe_reason or None
+        rec.landmarks_associated = info.associated
+        rec.window_residual_px = _round(info.window_residual_px, 3)
+        rec.pose_shift_sigmas = _round(info.pose_shift_sigmas, 3)
     if points.motion is not None:
         rec.pair_rotation_deg = round(points.motion.rotation_deg, 3)
         rec.pair_translation_m = round(points.motion.translation_m, 4)
@@ -120,7 +133,7 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         rec.fit_source = out.source.value
         rec.fit_diagnostics = out.raw.to_json()
         if out.predicted_error is not None:
-            rec.fallback_predicted_error = _round(out.predicted_error, 5)
+            rec.predicted_error = _round(out.predicted_error, 5)
         if out.fit is not None:
             rec.alpha, rec.beta = float(out.fit.alpha), float(out.fit.beta)
             rec.sigma_alpha, rec.sigma_beta = _round(out.fit.sigma_alpha), _round(out.fit.sigma_beta)
@@ -136,6 +149,7 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
             rec.points_evaluated = int(acc.count)
             rec.points_rel_err_median = None if acc.count == 0 else _round(acc.median, 5)
             rec.points_rel_err_p90 = None if acc.count == 0 else _round(acc.p90, 5)
+            rec.points_rel_err_bias = None if acc.count == 0 else _round(acc.bias, 5)
     return rec
 
 

@@ -14,21 +14,25 @@ from typing import Iterable
 
 from tqdm import tqdm
 
+from matchers import Features
 from vio_core.errors import InputError
 
 from .._version import __version__
+from ..disparity import DisparityKind
 from ..evaluation import FrameEvaluation, aggregate_point_accuracy, average_metrics, evaluate_frame
 from ..export import RunExporter
 from ..frame import Frame
 from ..io import Sequence
-from ..pipeline import FrameResult, FrameStatus, Pipeline
+from ..pipeline import FrameResult, FrameStatus, Pipeline, PreparedFrame
 from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
+from .overlap import OrderedWriter, Prefetcher, opencv_threads, overlap_opencv_threads, prefetch_workers
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
+from .timing import timing_summary
 from .trajectory import run_trajectory
 from .verdict import judge_run
 
@@ -50,7 +54,7 @@ def run_header(sequence: Sequence, pipeline: Pipeline, settings: RunSettings, co
 
 def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunSettings = RunSettings(), *,
                  progress: bool | None = None, command: list[str] | None = None,
-                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = ()) -> RunSummary:
+                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = (), overlap: bool = True) -> RunSummary:
     """Process ``sequence`` (or its first ``settings.max_frames`` frames) and write outputs to ``out_dir``.
 
     Everything is written into a staging folder next to ``out_dir`` and moved into place
@@ -68,6 +72,12 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
             atomically at the end) or ``"resume"`` (continue an interrupted run).
         inputs: further paths the run reads (disparity folder, model, config file):
             ``out_dir`` may not be, lie in or contain them, nor the sequence folder.
+        overlap: prepare the next frames (image, features, disparity) and write the outputs
+            in worker threads (:mod:`vio_depth.run.overlap`: with SIFT, one prefetch thread per
+            core up to 4), with OpenCV's own thread pool reduced to the cores left over
+            (:func:`~vio_depth.run.overlap.overlap_opencv_threads`);
+            False runs everything in this thread, one stage after the other. Both give
+            byte-identical outputs.
 
     Returns:
         :class:`RunSummary` (also written to ``metrics.json`` with ground truth);
@@ -97,7 +107,9 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary.resumed_frames = -1
         return summary
     try:
-        summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n)
+        workers = _prefetch_workers(pipeline) if overlap else 1
+        with opencv_threads(overlap_opencv_threads(workers) if overlap else None):
+            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers)
         folder.commit()
     except BaseException:
         folder.release()
@@ -107,8 +119,28 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     return summary
 
 
+def _prefetch_workers(pipeline: Pipeline) -> int:
+    """Prefetch threads for ``pipeline``: several when its preparation may run concurrently
+    (a matcher whose ``extract`` is thread-safe, no model inference, which uses every core
+    by itself)."""
+    matcher = pipeline.matcher
+    concurrent = (matcher is None or getattr(matcher, "concurrent_extract", False)) and \
+        getattr(pipeline.disparity_source, "kind", None) != DisparityKind.MODEL
+    return prefetch_workers(concurrent)
+
+
+def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features | None = None) -> PreparedFrame:
+    """Frame ``i`` through the pipeline's stateless stages (timed: ``load`` and the stages)."""
+    t = time.perf_counter()
+    frame = sequence[i]
+    load = time.perf_counter() - t
+    prepared = pipeline.prepare(frame, features)
+    prepared.timings["load"] = load
+    return prepared
+
+
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
-         plan: ResumePlan, progress: bool | None, n: int) -> RunSummary:
+         plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``."""
     out_dir = folder.staging
@@ -116,6 +148,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
     exporter = RunExporter(out_dir, export) if export.any else None
     t_start = time.perf_counter()
+    evaluate = settings.evaluate and sequence.has_gt_depth
     evaluate_points = not pipeline.settings.points.uses_ground_truth  # reference points come from the GT
 
     def finish_frame(frame: Frame, res: FrameResult, write: bool = True) -> tuple[FrameRecord, FrameEvaluation | None]:
@@ -126,7 +159,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             exporter.add_frame(frame, res, write=write)
         res.timings["write"] = time.perf_counter() - t
         evaluation = None
-        if sequence.has_gt_depth:
+        if evaluate:
             t = time.perf_counter()
             gt = frame.gt_depth()
             if gt is not None:
@@ -138,35 +171,62 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
 
     results: dict[int, FrameResult] = {}
     done: dict[int, tuple[FrameRecord, FrameEvaluation | None]] = {}
+
+    def write_job(i: int, frame: Frame, res: FrameResult, journal: bool = True):
+        """The writer's job for frame ``i``: its files, evaluation and record, then its journal line."""
+        replay = i < plan.start and journal
+
+        def job() -> None:
+            done[i] = finish_frame(frame, res, write=not replay)
+            if replay:
+                diff = record_difference(plan.records[i], done[i][0].to_json())
+                if diff:
+                    raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
+                                      f"result than the interrupted run ({diff}); give --overwrite to start over")
+            elif journal:
+                folder.append(done[i][0].to_json())
+            results[i] = res.without_maps()  # every frame's result is kept: without its (H, W) maps
+        return job
+
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
                disable=(not sys.stderr.isatty()) if progress is None else not progress, file=sys.stderr)
     with_depth = 0
     if plan.start:
         log.info("resuming %s: replaying frames 0-%d, then continuing", folder.out, plan.start - 1)
-    for i in bar:
-        t = time.perf_counter()
-        frame = sequence[i]
-        load = time.perf_counter() - t
-        res = pipeline.process(frame)
-        res.timings["load"] = load
-        results[i] = res
-        replay = i < plan.start
-        done[i] = finish_frame(frame, res, write=not replay)
-        if replay:
-            diff = record_difference(plan.records[i], done[i][0].to_json())
-            if diff:
-                raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
-                                  f"result than the interrupted run ({diff}); give --overwrite to start over")
-        else:
-            folder.append(done[i][0].to_json())
-        with_depth += res.has_depth
-        bar.set_postfix(depth=f"{with_depth}/{i + 1}")
-    if settings.backfill and pipeline.points is not None:
-        for i, (frame, res) in backfill_leading_frames(sequence, pipeline, results, n).items():
-            res.backfilled = True
-            res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
-            results[i] = res
-            done[i] = finish_frame(frame, res)
+    writer = OrderedWriter(threaded=overlap)
+    t_backfill = 0.0
+    backfill = settings.backfill and pipeline.points is not None
+    # the backward pass re-uses the features of the first frames (bounded: see _keep_features)
+    features: dict[int, Features] = {}
+    first_ok = None
+    try:
+        with Prefetcher(lambda i: _prepare(sequence, pipeline, i), range(n), workers + 1, threaded=overlap,
+                        workers=workers) as frames:
+            for i in bar:
+                prepared = frames.get()
+                res = pipeline.process_prepared(prepared)
+                results[i] = res
+                writer.submit(write_job(i, prepared.frame, res))
+                with_depth += res.has_depth
+                first_ok = i if first_ok is None and res.has_depth else first_ok
+                if backfill and _keep_features(i, first_ok, pipeline.settings.pairing.buffer_size):
+                    features[i] = prepared.features
+                bar.set_postfix(depth=f"{with_depth}/{i + 1}")
+        if backfill:
+            t_backfill = time.perf_counter()
+            back = backfill_leading_frames(sequence, pipeline, results, n, overlap=overlap, features=features,
+                                           workers=workers)
+            features.clear()
+            for i, (frame, res) in back.items():
+                res.backfilled = True
+                res.reason = f"offline backfill, paired with a later keyframe; {res.reason}".rstrip("; ")
+                results[i] = res
+                writer.submit(write_job(i, frame, res, journal=False))
+            t_backfill = time.perf_counter() - t_backfill
+        writer.finish()
+    except BaseException:
+        writer.drain_quietly()  # the frames already handed over are completed and journaled
+        raise
 
     records = [done[i][0] for i in range(n)]
     evaluations = [done[i][1] for i in range(n)]
@@ -180,6 +240,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         run=header.to_json(),
         resumed_frames=plan.start,
     )
+    timing_frames = [records[i].timings for i in range(n)]
     for r in records:
         summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
     dense = [e.metrics for e in evaluations if e is not None and e.metrics is not None]
@@ -198,9 +259,11 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
     summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
+    summary.seconds = round(time.perf_counter() - t_start, 2)
+    summary.timings = timing_summary(timing_frames, time.perf_counter() - t_start, overlap=overlap,
+                                     backfill_s=t_backfill, prefetch_workers=workers)
     # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
-    outputs.finish(header, records, summary if sequence.has_gt_depth or trajectory.ate is not None else None,
-                   trajectory.trajectory)
+    outputs.finish(header, records, summary, trajectory.trajectory)
     if settings.report:
         summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,
@@ -208,14 +271,27 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     return summary
 
 
-def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict[int, FrameResult], n: int) -> dict:
+def _keep_features(i: int, first_ok: int | None, buffer_size: int) -> bool:
+    """Whether frame ``i``'s features may serve the backward pass: it reaches at most
+    ``2 * buffer_size`` frames beyond the frame before the first one with depth; while no
+    frame has depth yet, at most ``4 * buffer_size`` frames are kept (memory stays bounded)."""
+    if first_ok is None:
+        return i < 4 * buffer_size
+    return i < first_ok + 2 * buffer_size
+
+
+def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dict, n: int, *,
+                            overlap: bool = False, features: dict | None = None, workers: int = 1) -> dict:
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about
     pairing or points (not a missing disparity). A fresh pipeline with the same settings
     processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
     frames beyond the last leading frame, so each leading frame meets keyframes from its
-    future. Returns ``{index: (frame, FrameResult)}`` for the frames that now have depth.
+    future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
+    :class:`FrameResult`); ``overlap`` prepares the frames in ``workers`` worker threads;
+    ``features`` maps indices to features the forward pass extracted (not extracted again). Returns
+    ``{index: (frame, FrameResult)}`` for the frames that now have depth.
     """
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
     if first_ok is None or first_ok == 0:
@@ -227,13 +303,13 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     backward = pipeline.fresh()
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
-    for i in range(last, -1, -1):
-        t = time.perf_counter()
-        frame = sequence[i]
-        load = time.perf_counter() - t
-        res = backward.process(frame)
-        res.timings["load"] = load
-        if i in lead and res.depth is not None:
-            out[i] = (frame, res)
+    features = {} if features is None else features
+    with Prefetcher(lambda i: _prepare(sequence, backward, i, features.get(i)), range(last, -1, -1), workers + 1,
+                    threaded=overlap, workers=workers) as frames:
+        for i in range(last, -1, -1):
+            prepared = frames.get()
+            res = backward.process_prepared(prepared)
+            if i in lead and res.depth is not None:
+                out[i] = (prepared.frame, res)
     log.info("backfill: %d of %d leading frames got depth from later keyframes", len(out), len(lead))
     return out

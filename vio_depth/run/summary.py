@@ -28,6 +28,8 @@ class RunSummary:
         outputs: what the optional exports wrote (counts, notes; docs/outputs.md).
         report: path of the report's ``index.html`` when one was written, else "".
         verdict: whether the run gave enough metric depth (:class:`~vio_depth.run.verdict.RunVerdict`).
+        timings: median and p90 seconds per stage, lane totals and frames per second of the
+            whole run (:func:`~vio_depth.run.timing.timing_summary`).
         resumed_frames: frames replayed from an interrupted run (0: not resumed, -1: the
             finished run was already there); not written to ``metrics.json``, so a resumed
             run's file equals an uninterrupted one's.
@@ -46,6 +48,7 @@ class RunSummary:
     outputs: dict[str, Any] = field(default_factory=dict)
     report: str = ""
     verdict: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, Any] = field(default_factory=dict)
     resumed_frames: int = 0
 
     def to_json(self) -> dict:

@@ -9,7 +9,9 @@ the origin)::
 
     T_w_cur = T_w_kf T_kf_cur
 
-With ``--poses gt`` this reproduces the sequence's poses (ATE ~ 0, a consistency check);
+With ``--points landmarks`` a frame's pose is the landmark window's refined pose of it
+(the sequence's pose corrected by the images within its prior). With ``--poses gt`` and
+two-view points this reproduces the sequence's poses (ATE ~ 0, a consistency check);
 with ``--poses imu`` on a posed sequence each pose is the IMU prediction from its keyframe,
 so ATE and RPE measure the poses the triangulation used. Frames without a relative pose
 (the first frame, ``no_pose``) get no line.
@@ -82,7 +84,11 @@ def used_poses(sequence: Sequence, results: dict[int, FrameResult],
             return np.eye(4)
         return None
 
-    pairs = {i: r.points.relative_pose for i, r in results.items() if r.points.relative_pose is not None}
+    # a stage that used world poses (the landmark window's refined poses) gives them directly
+    poses.update({i: np.asarray(r.points.T_w_c, dtype=np.float64) for i, r in results.items()
+                  if r.points.T_w_c is not None})
+    pairs = {i: r.points.relative_pose for i, r in results.items()
+             if r.points.relative_pose is not None and i not in poses}
     # forward pairs in time order, then backfill pairs (with later keyframes) backwards in time
     order = sorted(i for i, (k, _) in pairs.items() if k < i) + sorted((i for i, (k, _) in pairs.items() if k > i),
                                                                        reverse=True)

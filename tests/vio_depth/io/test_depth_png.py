@@ -58,3 +58,19 @@ def test_write_rejects_bad_shapes_and_extensions(tmp_path):
         write_depth_png(tmp_path / "d.png", np.zeros((2, 3, 1)))
     with pytest.raises(InputError):
         write_depth_png(tmp_path / "d.jpg", np.ones((2, 3)))
+
+
+def test_float32_fast_path_and_fast_png_store_the_same_values(tmp_path):
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.0, 300.0, (40, 50)).astype(np.float32)
+    depth[0, :6] = [np.nan, np.inf, -np.inf, -1.0, 0.0, 3e38]
+    depth[1, :4] = [1e-6, 255.998, 127.99805, 0.001953125]  # rounding at half steps and the range ends
+    fast = encode_depth_uint16(depth)  # float32, scale 256: the exact float32 path
+    reference = encode_depth_uint16(depth.astype(np.float64))
+    assert fast.dtype == np.uint16 and np.array_equal(fast, reference)
+    assert np.array_equal(encode_depth_uint16(depth, scale=1000.0), encode_depth_uint16(depth.astype(np.float64),
+                                                                                          scale=1000.0))
+    write_depth_png(tmp_path / "small.png", depth)
+    write_depth_png(tmp_path / "fast.png", depth, fast=True)
+    assert np.array_equal(read_depth_png(tmp_path / "fast.png"), read_depth_png(tmp_path / "small.png"))
+    assert (tmp_path / "fast.png").read_bytes() != (tmp_path / "small.png").read_bytes()

@@ -70,6 +70,7 @@ def _records(out: Path):
 def _metrics(out: Path):
     m = json.loads((out / "metrics.json").read_text())
     m.pop("seconds")
+    m.pop("timings")
     m["run"].pop("command")
     return m
 

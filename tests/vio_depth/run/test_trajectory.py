@@ -27,7 +27,7 @@ def _run(T_w_c, pairs):
     """A fake sequence (frames 0..N-1 at 10 Hz with poses ``T_w_c``, None = no pose) and fake
     results whose first pair is ``pairs[i] = (keyframe, T_kf_cur)``."""
     sequence = [SimpleNamespace(timestamp=0.1 * i, T_w_c=T) for i, T in enumerate(T_w_c)]
-    results = {i: SimpleNamespace(points=SimpleNamespace(relative_pose=pairs.get(i))) for i in range(len(T_w_c))}
+    results = {i: SimpleNamespace(points=SimpleNamespace(relative_pose=pairs.get(i), T_w_c=None)) for i in range(len(T_w_c))}
     return sequence, results
 
 

@@ -1,0 +1,289 @@
+"""Throughput of the whole ``vio-depth run`` against bare OpenCV SIFT extraction and the
+paper-reference pipeline, side by side in one process; peak memory of long runs (issue 11).
+
+Per dataset, interleaved ``--repeats`` times (the best of each is reported):
+
+* **bare SIFT**: ``cv2.cvtColor(RGB2GRAY)`` + ``SIFT.detectAndCompute`` with the project's
+  SIFT settings (``matchers.SiftSettings`` defaults: 4000 features, contrast 0.04, edge 10,
+  3 layers, sigma 1.6) on the run's frames, decoded into memory beforehand; **no RootSIFT**
+  normalisation (that is part of the project's extraction, not of OpenCV's). Measured with
+  OpenCV's default thread count and with 1 thread; the faster is the baseline.
+* **vio-depth run**: ``vio_depth.cli.main(["run", ...])`` in this process: SIFT, precomputed
+  disparity files (``--disparity-dir``), every default output written (depth PNGs,
+  ``frames.jsonl``, ``trajectory.tum``, ``metrics.json``), the offline backward pass,
+  ``--no-evaluation``; the wall time of the whole call.
+* **paper-reference**: the published pipeline re-implemented
+  (``vio_depth.baselines.paper_reference``: OpenCV SIFT at its defaults re-extracted for both
+  images of every pair, FLANN without ratio test, unchecked triangulation, scikit-learn
+  ``RANSACRegressor``) on the same frames and disparity files; it writes no outputs.
+
+Datasets (``benchmarks/throughput_data.py``; rendered once and cached, ``--cache``): the
+street sample's drive rendered at the KITTI size 1242x375 (150 frames, SIMULATED
+disparity), KITTI-tiny (7 real frames ping-ponged to 61, SIMULATED LiDAR-densified
+disparity; skipped when ``../shared/data`` is absent) and the room sample at 640x480
+(120 frames). Peak RSS (``ru_maxrss`` of its own subprocess, ``vio-depth run`` as above)
+of a 100-frame and a 1000-frame run over the ping-pong of the 1242x375 frames.
+
+    python benchmarks/bench_throughput.py                      # everything (~25 min the first time: rendering)
+    python benchmarks/bench_throughput.py --datasets street_kitti --repeats 5 --no-rss
+
+Prints a table and exits 1 when a done-when criterion of issue 11 fails on 1242x375:
+run >= 0.8 x bare SIFT, run >= 2 x paper-reference, RSS(1000) <= 1.1 x RSS(100).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # measure this checkout's code
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import throughput_data as data  # noqa: E402
+
+from matchers import SiftSettings  # noqa: E402
+from vio_depth.baselines import paper_reference  # noqa: E402
+from vio_depth.cli import main as vio_depth_main  # noqa: E402
+from vio_depth.disparity import FileDisparity  # noqa: E402
+from vio_depth.io import open_sequence  # noqa: E402
+from vio_depth.io.depth_png import FAST_PNG_PARAMS  # noqa: E402
+
+#: dataset -> (source, frames in the timed view, pairing preset, paper-reference preset)
+DATASETS = {
+    "street_kitti": ("street_kitti", 150, "kitti", "kitti"),
+    "kitti_tiny": ("kitti_tiny", 61, "kitti", "kitti"),
+    "room_vga": ("room_vga", 120, "indoor", "indoor"),
+}
+
+
+# ----------------------------------------------------------------------------- the three measurements
+def bare_sift_seconds(images: list[np.ndarray], threads: int | None = None) -> float:
+    """Seconds for OpenCV SIFT (project settings, no RootSIFT) on every image, decoded beforehand,
+    with ``threads`` OpenCV threads (None: as configured)."""
+    before = cv2.getNumThreads()
+    if threads is not None:
+        cv2.setNumThreads(threads)
+    try:
+        return _bare_sift_seconds(images)
+    finally:
+        cv2.setNumThreads(before)
+
+
+def _bare_sift_seconds(images: list[np.ndarray]) -> float:
+    s = SiftSettings()
+    sift = cv2.SIFT_create(nfeatures=s.max_features, nOctaveLayers=s.n_octave_layers,
+                           contrastThreshold=s.contrast_threshold, edgeThreshold=s.edge_threshold, sigma=s.sigma)
+    t = time.perf_counter()
+    for img in images:
+        sift.detectAndCompute(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), None)
+    return time.perf_counter() - t
+
+
+def run_args(view: Path, out: Path, pairing: str) -> list[str]:
+    return ["-q", "run", str(view), "--out", str(out), "--disparity-dir", str(view / "disparity"), "--pairing", pairing,
+            "--no-evaluation", "--no-progress"]
+
+
+def run_seconds(view: Path, out: Path, pairing: str, extra: list[str] = ()) -> tuple[float, dict]:
+    """Seconds of the whole ``vio-depth run`` (in this process) and its metrics.json timings."""
+    shutil.rmtree(out, ignore_errors=True)
+    sink = io.StringIO()
+    t = time.perf_counter()
+    with contextlib.redirect_stdout(sink):
+        rc = vio_depth_main([*run_args(view, out, pairing), *extra])
+    seconds = time.perf_counter() - t
+    if rc != 0:
+        raise SystemExit(f"vio-depth run failed with exit code {rc} on {view}")
+    import json
+    timings = json.loads((out / "metrics.json").read_text())["timings"]
+    return seconds, timings
+
+
+def paper_reference_seconds(module, view: Path, preset: str) -> tuple[float, dict]:
+    """Seconds of the paper-reference pipeline over every frame of ``view``, and its status counts."""
+    seq = open_sequence(view)
+    source = FileDisparity(view / "disparity")
+    settings = module.paper_reference_preset(preset)
+    counts: dict[str, int] = {}
+    t = time.perf_counter()
+    for r in module.iter_paper_reference(seq, source, settings):
+        counts[r.status.value] = counts.get(r.status.value, 0) + 1
+    return time.perf_counter() - t, counts
+
+
+def peak_rss_kib(view: Path, out: Path, pairing: str) -> int:
+    """``ru_maxrss`` (KiB) of ``python -m vio_depth.cli run`` on ``view`` in its own subprocess."""
+    shutil.rmtree(out, ignore_errors=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "vio_depth.cli", *run_args(view, out, pairing)], cwd=ROOT,
+                            env=env, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"vio-depth run failed with exit code {proc.returncode} on {view}")
+    shutil.rmtree(out, ignore_errors=True)
+    return int(usage.ru_maxrss)
+
+
+#: (label, cv2.imencode parameters) compared by --png
+PNG_CONFIGS = [
+    ("zlib 9, adaptive filters (before)", [cv2.IMWRITE_PNG_COMPRESSION, 9]),
+    ("zlib 9, filtered strategy", [cv2.IMWRITE_PNG_COMPRESSION, 9, cv2.IMWRITE_PNG_STRATEGY,
+                                   cv2.IMWRITE_PNG_STRATEGY_FILTERED]),
+    ("zlib 6, adaptive filters", [cv2.IMWRITE_PNG_COMPRESSION, 6]),
+    ("zlib 1, adaptive filters", [cv2.IMWRITE_PNG_COMPRESSION, 1]),
+    ("zlib 0 (stored)", [cv2.IMWRITE_PNG_COMPRESSION, 0]),
+    ("RLE, SUB filter", [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+                         cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]),
+    ("Huffman only, no filter", [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
+                                 cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY, cv2.IMWRITE_PNG_FILTER,
+                                 cv2.IMWRITE_PNG_FILTER_NONE]),
+    ("Huffman only, SUB filter (now)", list(FAST_PNG_PARAMS)),
+]
+
+
+def png_study(depth_maps: list[np.ndarray], repeats: int) -> None:
+    """Encoding time and size of the run's depth PNGs (uint16 metres x 256) per encoder setting."""
+    print(f"\nPNG encoding of {len(depth_maps)} depth maps of {depth_maps[0].shape[1]}x{depth_maps[0].shape[0]} "
+          "(cv2.imencode, 1 OpenCV thread, best of the repeats; the decoded values are identical for all)")
+    print(f"  {'setting':36s} {'ms/map':>7s} {'KiB/map':>8s}")
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    for label, params in PNG_CONFIGS:
+        best, size = np.inf, 0
+        for _ in range(repeats):
+            t = time.perf_counter()
+            size = sum(len(cv2.imencode(".png", q, params)[1]) for q in depth_maps)
+            best = min(best, time.perf_counter() - t)
+        assert all(np.array_equal(cv2.imdecode(cv2.imencode(".png", q, params)[1], cv2.IMREAD_UNCHANGED), q)
+                   for q in depth_maps)
+        print(f"  {label:36s} {best / len(depth_maps) * 1e3:7.1f} {size / len(depth_maps) / 1024:8.0f}")
+    cv2.setNumThreads(threads)
+
+
+# ----------------------------------------------------------------------------- driver
+def prepare(name: str, cache: Path) -> Path | None:
+    """The timed view of dataset ``name`` (None when its data are absent)."""
+    source, n, _, _ = DATASETS[name]
+    if source == "kitti_tiny":
+        disparity = data.prepare_kitti_tiny(cache)
+        if disparity is None:
+            return None
+        return data.make_view(data.KITTI_TINY, disparity, n, cache / f"view_{name}_{n}")
+    rendered = data.prepare_rendered(source, cache)
+    return data.make_view(rendered, rendered / "disparity", n, cache / f"view_{name}_{n}")
+
+
+def load_average() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def measure(name: str, view: Path, repeats: int, paper) -> dict:
+    _, n, pairing, preset = DATASETS[name]
+    seq = open_sequence(view)
+    images = [seq[i].image() for i in range(len(seq))]
+    out = Path(tempfile.mkdtemp(prefix=f"bench_throughput_{name}_")) / "out"
+    best = {"sift": np.inf, "sift_1": np.inf, "run": np.inf, "paper": np.inf}
+    loads = [load_average()]
+    timings = statuses = None
+    for r in range(repeats):  # interleaved: each repeat measures all three
+        best["sift"] = min(best["sift"], bare_sift_seconds(images))
+        best["sift_1"] = min(best["sift_1"], bare_sift_seconds(images, 1))
+        seconds, t = run_seconds(view, out, pairing)
+        if seconds < best["run"]:
+            best["run"], timings = seconds, t
+        if paper is not None:
+            seconds, counts = paper_reference_seconds(paper, view, preset)
+            if seconds < best["paper"]:
+                best["paper"], statuses = seconds, counts
+        loads.append(load_average())
+    shutil.rmtree(out.parent, ignore_errors=True)
+    size = f"{images[0].shape[1]}x{images[0].shape[0]}"
+    best["sift_best"] = min(best["sift"], best["sift_1"])  # the baseline: the faster thread setting
+    return {"name": name, "size": size, "frames": len(images), "fps": {k: len(images) / v for k, v in best.items()},
+            "timings": timings, "paper_statuses": statuses, "loads": loads}
+
+
+def print_result(res: dict) -> None:
+    fps = res["fps"]
+    print(f"\n{res['name']} ({res['size']}, {res['frames']} frames); load average before/after each repeat: "
+          + " | ".join(res["loads"]))
+    print(f"  {'bare SIFT, OpenCV ' + str(cv2.getNumThreads()) + ' threads':40s} {fps['sift']:7.2f} frames/s")
+    print(f"  {'bare SIFT, OpenCV 1 thread':40s} {fps['sift_1']:7.2f} frames/s")
+    print(f"  {'vio-depth run (outputs, no evaluation)':40s} {fps['run']:7.2f} frames/s   "
+          f"= {fps['run'] / fps['sift_best']:.2f} x bare SIFT (the faster of the two)")
+    if np.isfinite(1 / fps["paper"]) and fps["paper"] > 0:
+        print(f"  {'paper-reference pipeline':40s} {fps['paper']:7.2f} frames/s   "
+              f"run = {fps['run'] / fps['paper']:.2f} x paper-reference   statuses {res['paper_statuses']}")
+    t = res["timings"]
+    if t:
+        stages = ", ".join(f"{k} {v['median_s'] * 1e3:.1f}" for k, v in t["stages"].items())
+        print(f"  run stage medians (ms): {stages}")
+        print(f"  run lanes (busy s): {t['lanes']}, wall {t['wall_s']:.2f} s (backward pass {t['backfill_s']:.2f} s)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--datasets", nargs="*", default=list(DATASETS), choices=list(DATASETS))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--cache", type=Path, default=data.DEFAULT_CACHE, help=f"default {data.DEFAULT_CACHE}")
+    ap.add_argument("--no-rss", action="store_true", help="skip the 100- vs 1000-frame peak memory runs")
+    ap.add_argument("--rss-frames", type=int, nargs=2, default=[100, 1000], metavar=("SHORT", "LONG"))
+    ap.add_argument("--no-paper", action="store_true", help="skip the paper-reference baseline")
+    ap.add_argument("--png", action="store_true", help="also time the depth PNG encoding per zlib level/strategy")
+    args = ap.parse_args(argv)
+    print(f"bench_throughput: {os.cpu_count()} CPUs, OpenCV {cv2.__version__} with {cv2.getNumThreads()} threads, "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, numpy {np.__version__}")
+    paper = None if args.no_paper else paper_reference
+    ok, checked = True, False
+    for name in args.datasets:
+        view = prepare(name, args.cache)
+        if view is None:
+            print(f"\n{name}: skipped (../shared/data absent)")
+            continue
+        res = measure(name, view, args.repeats, paper)
+        print_result(res)
+        if name == "street_kitti":
+            checked = True
+            ok &= res["fps"]["run"] >= 0.8 * res["fps"]["sift_best"]
+            ok &= paper is None or res["fps"]["run"] >= 2.0 * res["fps"]["paper"]
+    if args.png:
+        view = prepare("street_kitti", args.cache)
+        out = Path(tempfile.mkdtemp(prefix="bench_throughput_png_")) / "out"
+        run_seconds(view, out, "kitti")
+        maps = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((out / "depth").glob("*.png"))[::5]]
+        shutil.rmtree(out.parent, ignore_errors=True)
+        png_study(maps, args.repeats)
+    if not args.no_rss:
+        rendered = data.prepare_rendered("street_kitti", args.cache)
+        rss = {}
+        for n in args.rss_frames:
+            view = data.make_view(rendered, rendered / "disparity", n, args.cache / f"view_street_kitti_pingpong_{n}")
+            out = Path(tempfile.mkdtemp(prefix="bench_throughput_rss_")) / "out"
+            t = time.perf_counter()
+            rss[n] = peak_rss_kib(view, out, "kitti")
+            print(f"\npeak RSS of `vio-depth run` over {n} frames of 1242x375 (ping-pong): {rss[n] / 1024:.0f} MiB "
+                  f"({time.perf_counter() - t:.0f} s, load average {load_average()})")
+            shutil.rmtree(out.parent, ignore_errors=True)
+        short, long = args.rss_frames
+        ratio = rss[long] / rss[short]
+        print(f"peak RSS {long} frames / {short} frames: {ratio:.3f}")
+        ok &= ratio <= 1.10
+        checked = True
+    if checked:
+        print("\nall done-when criteria measured here pass" if ok else "\na done-when criterion FAILS")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

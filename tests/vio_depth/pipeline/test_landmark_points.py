@@ -1,0 +1,50 @@
+"""The landmark points stage in the pipeline: metric points from the window, records, errors."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_core import SettingsError
+from vio_depth import Pipeline, PipelineSettings, open_sequence
+from vio_depth.pipeline import FrameStatus
+from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
+
+STREET = Path(__file__).resolve().parents[3] / "sample_sequences" / "street"
+pytestmark = pytest.mark.skipif(not (STREET / "sequence.json").exists(), reason="bundled samples missing")
+
+
+def test_landmark_points_are_metric_and_the_window_poses_are_used(tmp_path):
+    seq = open_sequence(STREET)
+    assert seq.pose_kind == "exact"  # rendered: the tightest pose prior
+    settings = PipelineSettings.from_presets(points="landmarks")
+    run_sequence(seq, Pipeline(settings, sequence=seq), tmp_path / "out", RunSettings(max_frames=12))
+    _, frames = read_frames_jsonl(tmp_path / "out" / "frames.jsonl")
+    assert frames[0]["point_source"] == "landmarks" and frames[0]["keyframe"] is True
+    with_depth = [f for f in frames if f["alpha"] is not None]
+    assert len(with_depth) >= 11  # the first frame only through the backward pass
+    assert sum(f.get("keyframe", False) for f in frames) >= 3
+    for f in with_depth[1:]:
+        assert f["points_rel_err_median"] < 0.03 and f["abs_rel"] < 0.05
+    # trajectory.tum holds the window's poses: within millimetres of the exact ones
+    rows = np.loadtxt(tmp_path / "out" / "trajectory.tum")
+    assert len(rows) >= 11
+    truth = {round(seq[i].timestamp, 6): seq[i].T_w_c[:3, 3] for i in range(12)}
+    err = [np.linalg.norm(r[1:4] - truth[round(r[0], 6)]) for r in rows]
+    assert max(err) < 0.01
+
+
+def test_landmarks_need_the_sequences_poses_as_priors():
+    seq = open_sequence(STREET)
+    with pytest.raises(SettingsError, match="--poses gt"):
+        Pipeline(PipelineSettings.from_presets(points="landmarks", poses="imu"), sequence=seq)
+
+
+def test_a_frame_without_a_pose_gets_no_pose_not_an_exception():
+    seq = open_sequence(STREET)
+    pipe = Pipeline(PipelineSettings.from_presets(points="landmarks"), sequence=seq)
+    pipe.process(seq[0])
+    frame = seq[1]
+    frame.T_w_c = None
+    res = pipe.process(frame)
+    assert res.status == FrameStatus.NO_POSE and res.depth is None
