@@ -5,6 +5,7 @@ Layout (paths relative to the folder, named in ``sequence.json``)::
     sequence.json      format version, name, camera, file names, IMU block, depth, disparity
     frames.txt         "timestamp image_path" per line (seconds, relative path)
     poses.txt          TUM trajectory "t tx ty tz qx qy qz qw", camera-to-world, metres
+                       (optional when an IMU block is present: then only ``--poses vio`` runs)
     imu.txt            optional "t gx gy gz ax ay az" (s, rad/s, m/s^2), >= 100 Hz
     depth/<stem>.png   optional 16-bit ground-truth depth, metres * 256, 0 = invalid
     disparity/<stem>.npy  optional float32 (H, W) affine-invariant disparity, or a
@@ -215,7 +216,8 @@ class NativeSequence(Sequence):
 
     Attributes:
         timestamps: (N,) seconds of the frames.
-        T_w_c: (N, 4, 4) camera-to-world pose of each frame, metres.
+        T_w_c: (N, 4, 4) camera-to-world pose of each frame, metres, or None for a sequence
+            without poses (allowed only with IMU samples: the ``vio`` pose source needs no poses).
         image_paths: absolute image path of each frame.
         disparity: the :class:`~vio_depth.disparity.DisparitySpec` the folder declares, or None.
     """
@@ -240,7 +242,12 @@ class NativeSequence(Sequence):
         self.metadata = meta.get("metadata", {})
 
         frames_path = _relative_file(root, _require(meta, "frames", json_path, ""), json_path, "frames")
-        poses_path = _relative_file(root, _require(meta, "poses", json_path, ""), json_path, "poses")
+        poses_path = None
+        if meta.get("poses") is not None:
+            poses_path = _relative_file(root, meta["poses"], json_path, "poses")
+        elif meta.get("imu") is None:
+            raise SequenceFormatError(json_path, "missing key 'poses' (it may be left out only when an 'imu' block "
+                                                 "is present: then the poses come from --poses vio)")
         t_frames, image_names, frame_lines = read_frames_txt(frames_path)
         self.timestamps = t_frames
         self.image_paths = []
@@ -256,19 +263,21 @@ class NativeSequence(Sequence):
             self.image_paths.append(p)
         self.stems = list(stems)
 
-        t_poses, T_poses = read_tum_trajectory(poses_path)
-        j = np.searchsorted(t_poses, t_frames)
-        lo = np.clip(j - 1, 0, len(t_poses) - 1)
-        hi = np.clip(j, 0, len(t_poses) - 1)
-        j = np.where(np.abs(t_poses[lo] - t_frames) <= np.abs(t_poses[hi] - t_frames), lo, hi)
-        gap = np.abs(t_poses[j] - t_frames)
-        missing = np.flatnonzero(gap > POSE_TIME_TOLERANCE_S)
-        if len(missing):
-            i = int(missing[0])
-            raise SequenceFormatError(
-                frames_path, f"frame {self.stems[i]!r} (t={t_frames[i]:.6f}) has no pose in {poses_path.name} "
-                f"within {POSE_TIME_TOLERANCE_S * 1e3:.0f} ms", int(frame_lines[i]))
-        self.T_w_c = T_poses[j]
+        self.T_w_c = None
+        if poses_path is not None:
+            t_poses, T_poses = read_tum_trajectory(poses_path)
+            j = np.searchsorted(t_poses, t_frames)
+            lo = np.clip(j - 1, 0, len(t_poses) - 1)
+            hi = np.clip(j, 0, len(t_poses) - 1)
+            j = np.where(np.abs(t_poses[lo] - t_frames) <= np.abs(t_poses[hi] - t_frames), lo, hi)
+            gap = np.abs(t_poses[j] - t_frames)
+            missing = np.flatnonzero(gap > POSE_TIME_TOLERANCE_S)
+            if len(missing):
+                i = int(missing[0])
+                raise SequenceFormatError(
+                    frames_path, f"frame {self.stems[i]!r} (t={t_frames[i]:.6f}) has no pose in {poses_path.name} "
+                    f"within {POSE_TIME_TOLERANCE_S * 1e3:.0f} ms", int(frame_lines[i]))
+            self.T_w_c = T_poses[j]
 
         imu = None
         if meta.get("imu") is not None:
@@ -336,7 +345,7 @@ class NativeSequence(Sequence):
             timestamp=float(self.timestamps[index]),
             stem=stem,
             camera=camera,
-            T_w_c=self.T_w_c[index].copy(),
+            T_w_c=None if self.T_w_c is None else self.T_w_c[index].copy(),
             load_image=partial(read_rgb_image, image_path, camera),
             load_gt_depth=load_depth,
         )

@@ -98,7 +98,8 @@ class NativeSequenceWriter:
         Args:
             timestamp: seconds, greater than the previous frame's.
             image: (H, W, 3) uint8 RGB (or (H, W) grey) of the camera's size.
-            T_w_c: (4, 4) camera-to-world pose, metres.
+            T_w_c: (4, 4) camera-to-world pose, metres, or None: then for every frame, and the
+                sequence needs IMU samples (:meth:`set_imu`; no poses.txt is written).
             depth: optional (H, W) metres GT depth (NaN / <= 0 = invalid); all frames or none.
             disparity: (H, W) float disparity, required iff the disparity source is "files".
             stem: file stem (default: 6-digit frame number).
@@ -115,7 +116,9 @@ class NativeSequenceWriter:
         if image.shape[:2] != (self.camera.height, self.camera.width):
             raise InputError(f"image: size {image.shape[1]}x{image.shape[0]} differs from the camera's "
                              f"{self.camera.width}x{self.camera.height}")
-        T_w_c = check_transform("T_w_c", T_w_c)
+        T_w_c = None if T_w_c is None else check_transform("T_w_c", T_w_c)
+        if self._T and (self._T[-1] is None) != (T_w_c is None):
+            raise InputError("give a pose for every frame or for none")
         if self._t and not timestamp > self._t[-1]:
             raise InputError(f"timestamps must increase: {timestamp} after {self._t[-1]}")
         stem = f"{len(self._t):06d}" if stem is None else str(stem)
@@ -142,7 +145,7 @@ class NativeSequenceWriter:
             folder.mkdir(parents=True, exist_ok=True)
             np.save(folder / f"{stem}.npy", disparity.astype(np.float32))
         self._t.append(float(timestamp))
-        self._T.append(T_w_c.copy())
+        self._T.append(None if T_w_c is None else T_w_c.copy())
         self._stems.append(stem)
         return stem
 
@@ -156,7 +159,11 @@ class NativeSequenceWriter:
             fh.write("# timestamp image_path\n")
             for t, stem in zip(self._t, self._stems):
                 fh.write(f"{t:.6f} images/{stem}{self.image_ext}\n")
-        write_tum_trajectory(self.root / "poses.txt", np.asarray(self._t), np.stack(self._T))
+        posed = self._T[0] is not None
+        if not posed and self._imu is None:
+            raise InputError("a sequence without poses needs IMU samples (set_imu)")
+        if posed:
+            write_tum_trajectory(self.root / "poses.txt", np.asarray(self._t), np.stack(self._T))
         c = self.camera
         meta = {
             "format": FORMAT_TAG,
@@ -165,8 +172,9 @@ class NativeSequenceWriter:
             "camera": {"width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
                        "dist": list(c.dist)},
             "frames": "frames.txt",
-            "poses": "poses.txt",
         }
+        if posed:
+            meta["poses"] = "poses.txt"
         if c.model != "radtan":  # absent = radtan: files of radial-tangential cameras stay unchanged
             meta["camera"]["model"] = c.model
         if self._has_depth:

@@ -98,7 +98,8 @@ class LandmarkEstimator:
         s = res.sigma_depth[n:][ok[res.obs_track[n:]]]
         return float(np.median(s / np.maximum(d, 1e-12)))
 
-    def process(self, frame_id: int, timestamp: float, camera: Camera, T_w_c, features) -> FrameLandmarks:
+    def process(self, frame_id: int, timestamp: float, camera: Camera, T_w_c, features,
+                prior_covariance=None) -> FrameLandmarks:
         """Process the next frame (see the module docstring).
 
         Args:
@@ -107,19 +108,21 @@ class LandmarkEstimator:
             camera: the frame's camera.
             T_w_c: (4, 4) the frame's pose prior, camera-to-world, metres.
             features: its ``matchers.Features`` (keypoints in raw pixels).
+            prior_covariance: (6, 6) covariance of ``T_w_c`` relative to the newest keyframe
+                (e.g. from IMU preintegration), or None (the settings' relative pose prior).
         """
         s = self.settings
         T_w_c = check_transform("T_w_c", T_w_c)
         kp = np.asarray(features.keypoints, np.float64)
         w = self.window
         if not w.keyframe_ids:
-            update = self._insert(frame_id, timestamp, camera, T_w_c, features, ())
+            update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
             return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
                                   "first frame", 0, float("inf"), update)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
         matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
         n_matches = sum(len(m) for m in matches)
-        points = w.query(camera, T_w_c, kp, matches)
+        points = w.query(camera, T_w_c, kp, matches, prior_covariance=prior_covariance)
         newest = newest_first[0]
         rel = self._pair_relative_sigma(newest, camera, kp, points, matches[0])
         reason = ""
@@ -131,13 +134,24 @@ class LandmarkEstimator:
             reason = f"{points.associated} of the newest keyframe's {self._last_tracked} landmarks found"
         if not reason:
             return FrameLandmarks(points, False, "", n_matches, rel)
-        update = self._insert(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
+        update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
         points = w.query(camera, None, kp, frame_id=frame_id)
         self._last_tracked = len(points)
         return FrameLandmarks(points, True, reason, n_matches, rel, update)
 
-    def _insert(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
+    def insert_keyframe(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
+        """Insert a keyframe directly (e.g. the keyframes of a VIO initialisation), bypassing the policy.
+
+        ``matches``: :class:`FrameMatches` with keyframes of the window; ``T_w_c`` its pose
+        prior (or None when a motion factor source gives it); ``features`` are kept for
+        matching later frames.
+        """
         w = self.window
+        if getattr(w.motion_factors, "provides_poses", False):
+            # the motion factor source gives every keyframe's pose, and the frames' pose priors are
+            # its predictions in the window's current frame (VIO): they are not sequence poses that
+            # the window corrects the way it corrected their keyframe's
+            T_w_c = None
         update = w.add_keyframe(KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c,
                                               np.asarray(features.keypoints, np.float64), matches))
         self._features[int(frame_id)] = features

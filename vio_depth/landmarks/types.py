@@ -43,7 +43,15 @@ class MotionFactorSource(Protocol):
     """Adds motion factors between consecutive keyframes (e.g. gtsam ``CombinedImuFactor``).
 
     With it, the pose-prior settings' ``absolute_on_every_keyframe`` is normally False: the
-    first keyframe is anchored by its prior and the source's factors carry the rest.
+    first keyframe is anchored by its prior and the source's factors carry the rest. A
+    source with a true attribute ``anchors_first_keyframe`` adds the first keyframe's prior
+    itself (in :meth:`factors` with ``previous`` None) and the window adds none. A source
+    with a method ``after_marginalisation(oldest_frame_id, estimate) -> gtsam.NonlinearFactorGraph``
+    adds factors on the window's oldest keyframe after each marginalisation (VIO: a gauge
+    prior on the unobservable yaw and position). A source with a true attribute
+    ``provides_poses`` gives every keyframe's initial pose (keyframes then carry no
+    ``T_w_c``): the pose priors of frames are its predictions in the window's current frame,
+    used as they are by :meth:`LandmarkWindow.query` (not corrected like a sequence pose).
     """
 
     def extra_keys(self, frame_id: int) -> list[int]:

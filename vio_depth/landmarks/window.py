@@ -61,6 +61,8 @@ def _pose_noise(gtsam, rot_sigma_rad: float, trans_sigma_m: float):
 
 
 def _calibration(gtsam, camera: Camera):
+    if camera.model != "radtan":
+        return None  # e.g. equidistant (fisheye): not Cal3DS2's model (use ideal pixels instead)
     d = camera.dist
     if len(d) > 4 and any(x != 0 for x in d[4:]):
         return None  # k3 and beyond: not representable by Cal3DS2 (use ideal pixels instead)
@@ -128,6 +130,12 @@ class LandmarkWindow:
         blocks = np.stack([cond[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(len(ids))])
         return blocks + 1e-12 * np.eye(6)
 
+    def joint_covariance(self, frame_ids) -> np.ndarray:
+        """(6K, 6K) joint marginal covariance of the poses of keyframes ``frame_ids`` (in that order)."""
+        ids = self.keyframe_ids
+        rows = np.concatenate([np.arange(6 * ids.index(f), 6 * ids.index(f) + 6) for f in frame_ids])
+        return self._joint_cov[np.ix_(rows, rows)].copy()
+
     @property
     def estimate(self):
         """The window's current ``gtsam.Values`` (a copy)."""
@@ -174,8 +182,11 @@ class LandmarkWindow:
                 f = graph.at(i)
                 self._factors.append((frozenset(f.keys()), f))
             new_values.insert(values)
+        # a motion factor source may anchor the first keyframe itself (VIO: a prior on yaw and
+        # position only, roll and pitch being observable through gravity)
+        anchored = bool(getattr(self.motion_factors, "anchors_first_keyframe", False))
         if kf.T_w_c is not None:
-            if first or p.absolute_on_every_keyframe:
+            if (first and not anchored) or p.absolute_on_every_keyframe:
                 noise = _pose_noise(gtsam, np.radians(p.absolute_rotation_deg), p.absolute_translation_m)
                 self._factors.append((frozenset([X(fid)]), gtsam.PriorFactorPose3(X(fid), gtsam.Pose3(kf.T_w_c), noise)))
             if prev is not None and p.absolute_on_every_keyframe and prev.T_w_c is not None:
@@ -215,6 +226,14 @@ class LandmarkWindow:
         if len(self._kf) > self.settings.window_keyframes:
             marg = next(iter(self._kf))
             self._marginalise(marg)
+            # a motion factor source may re-anchor the unobservable directions (VIO: yaw and
+            # position) on the new oldest keyframe, so that the window cannot drift along them
+            hook = getattr(self.motion_factors, "after_marginalisation", None)
+            if hook is not None:
+                graph = hook(next(iter(self._kf)), self._values)
+                for i in range(graph.size()):
+                    f = graph.at(i)
+                    self._factors.append((frozenset(f.keys()), f))
         # the landmarks of the (possibly shrunk) window at the refined poses and covariances
         _, lm = self._triangulate()
         self._landmarks = lm
@@ -368,7 +387,8 @@ class LandmarkWindow:
         self.tracks.remove_frame(frame_id)
 
     # ------------------------------------------------------------------ query
-    def query(self, camera: Camera, T_w_c, keypoints, matches=(), frame_id: int | None = None) -> LandmarkPoints:
+    def query(self, camera: Camera, T_w_c, keypoints, matches=(), frame_id: int | None = None,
+              prior_covariance=None) -> LandmarkPoints:
         """Metric landmark points seen by a frame (see the module docstring).
 
         Args:
@@ -380,6 +400,9 @@ class LandmarkWindow:
                 keyframe of the window).
             frame_id: the frame's id; when it is a keyframe of the window its
                 observations are read directly.
+            prior_covariance: (6, 6) covariance of ``T_w_c`` relative to the newest matched
+                keyframe (e.g. an IMU prediction's), or None: the relative pose prior of the
+                settings.
 
         Returns:
             :class:`LandmarkPoints` (possibly empty, with a reason).
@@ -406,7 +429,9 @@ class LandmarkWindow:
         ref_info = self._kf[ref].info
         T0 = T_prior if ref_info.T_w_c is None else self.pose(ref) @ invert_transform(ref_info.T_w_c) @ T_prior
         step = float(np.linalg.norm((invert_transform(T0) @ self.pose(ref))[:3, 3]))
-        prior_cov = self.relative_covariances()[self.keyframe_ids.index(ref)] + self._prior_covariance(step)
+        motion_cov = self._prior_covariance(step) if prior_covariance is None else check_array(
+            "prior_covariance", prior_covariance, (6, 6), finite=True)
+        prior_cov = self.relative_covariances()[self.keyframe_ids.index(ref)] + motion_cov
 
         def empty(reason):
             out = LandmarkPoints.empty(reason, T0)

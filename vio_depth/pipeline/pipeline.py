@@ -12,12 +12,12 @@ import time
 from dataclasses import replace
 
 from matchers import Features, Matcher, create_matcher
-from vio_core.errors import SettingsError
+from vio_core.errors import InputError, SettingsError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
 from ..frame import Frame
-from ..poses import GroundTruthPoses, PoseSource, create_pose_source
+from ..poses import GroundTruthPoses, PoseSource, TrackingPoseSource, VioSettings, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
 from .landmark_points import LandmarkPointsStage
 from .points import TwoViewPoints
@@ -46,26 +46,41 @@ class Pipeline:
                  disparity_source: DisparitySource | None = None, *, sequence=None, matcher: Matcher | None = None):
         self.settings = settings = PipelineSettings() if settings is None else settings
         self.sequence = sequence
-        self.pose_source = create_pose_source(settings.poses, sequence) if pose_source is None else pose_source
+        sfm = settings.points.kind == PointSourceKind.SFM
+        landmarks = settings.points.kind == PointSourceKind.LANDMARKS
+        tracking = isinstance(pose_source, TrackingPoseSource) or (
+            pose_source is None and isinstance(settings.poses, VioSettings))
+        if matcher is None and tracking and pose_source is not None:
+            matcher = pose_source.matcher
+        if matcher is None and (sfm or landmarks or tracking):
+            matcher = create_matcher(settings.matcher)
+        self._matcher = matcher
+        self.pose_source = create_pose_source(settings.poses, sequence, matcher) if pose_source is None else pose_source
+        #: the pose source that estimates poses from the frames itself (visual-inertial odometry), or None
+        self.tracker: TrackingPoseSource | None = (self.pose_source if isinstance(self.pose_source, TrackingPoseSource)
+                                                   else None)
+        if self.tracker is not None and self.tracker.matcher is not matcher:
+            raise InputError(f"the {self.tracker.name} pose source must use the pipeline's matcher "
+                             "(its features are extracted once, by the pipeline)")
         self.disparity_source = (create_disparity_source(settings.disparity, sequence)
                                  if disparity_source is None else disparity_source)
         self.rescaler = Rescaler(settings.rescaler)
         self.points = None
-        if settings.points.kind == PointSourceKind.SFM:
-            matcher = create_matcher(settings.matcher) if matcher is None else matcher
+        if sfm:
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
                                         settings.min_matches)
-        elif settings.points.kind == PointSourceKind.LANDMARKS:
+        elif landmarks:
             if not isinstance(self.pose_source, GroundTruthPoses):
                 raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
-                                    f"the {self.pose_source.name!r} pose source gives relative poses only")
-            matcher = create_matcher(settings.matcher) if matcher is None else matcher
+                                    f"the {self.pose_source.name!r} pose source gives no absolute poses with "
+                                    "uncertainty to use as priors")
             self.points = LandmarkPointsStage(matcher, settings.landmarks.resolved(getattr(sequence, "pose_kind",
                                                                                            "mocap")))
 
     @property
     def matcher(self) -> Matcher | None:
-        return None if self.points is None else self.points.matcher
+        """The matcher that extracts every frame's features (None when no stage needs features)."""
+        return self.points.matcher if self.points is not None else self._matcher
 
     def fresh(self) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history."""
@@ -88,13 +103,14 @@ class Pipeline:
         """
         timings: dict[str, float] = {}
         clock = time.perf_counter
-        if self.points is not None and features is None:
+        matcher = self.matcher
+        if matcher is not None and features is None:
             t = clock()
             image = frame.image()  # read once: a model disparity source gets the same pixels
             frame = replace(frame, load_image=lambda: image)
             timings["image"] = clock() - t
             t = clock()
-            features = self.points.matcher.extract(image)  # once per frame, kept if keyframe
+            features = matcher.extract(image)  # once per frame, kept if keyframe
             timings["features"] = clock() - t
         t = clock()
         disparity = self.disparity_source(frame)
@@ -102,14 +118,22 @@ class Pipeline:
         return PreparedFrame(frame, features, disparity, timings)
 
     def process_prepared(self, prepared: PreparedFrame) -> FrameResult:
-        """The stateful stages of a :meth:`prepare`-d frame, in stream order: pairing,
-        triangulation, fit, depth. ``process(frame)`` is ``process_prepared(prepare(frame))``."""
+        """The stateful stages of a :meth:`prepare`-d frame, in stream order: tracking (a
+        tracking pose source), pairing, triangulation, fit, depth. ``process(frame)`` is
+        ``process_prepared(prepare(frame))``."""
         frame, features, disparity = prepared.frame, prepared.features, prepared.disparity
         timings = dict(prepared.timings)
         clock = time.perf_counter
+        frame_pose = None
+        if self.tracker is not None:  # the odometry sees every frame, in order, before any relative pose
+            t = clock()
+            frame_pose = self.tracker.track(frame, features)
+            timings["poses"] = clock() - t
         t = clock()
         spec = self.settings.points
-        if self.points is not None:
+        if isinstance(self.points, TwoViewPoints):
+            points = self.points.process(frame, features, frame_pose)
+        elif self.points is not None:
             points = self.points.process(frame, features)
         else:
             gt = frame.gt_depth()
@@ -122,7 +146,7 @@ class Pipeline:
         timings.update(points.timings)
 
         result = FrameResult(frame.index, frame.stem, frame.timestamp, points.status, points.reason, spec, points,
-                             timings=timings)
+                             timings=timings, frame_pose=frame_pose)
         if disparity is None:
             result.status, result.reason = FrameStatus.NO_DISPARITY, "no disparity map for this frame"
             log.debug("frame %d: no disparity map", frame.index)

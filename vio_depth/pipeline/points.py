@@ -18,7 +18,7 @@ from vio_core.checks import check_array
 
 from ..frame import Frame
 from ..keyframes import Keyframe, KeyframeBuffer, Motion, PairingSettings
-from ..poses import PoseSource
+from ..poses import FramePose, PoseSource
 from .result import PairAttempt, PointsOutcome
 from .status import FrameStatus, PairStatus
 
@@ -65,10 +65,20 @@ class TwoViewPoints:
         self.min_matches = min_matches
         self.buffer = KeyframeBuffer(pairing)
 
-    def process(self, frame: Frame, features: Features) -> PointsOutcome:
-        """Points of ``frame`` (whose ``features`` were just extracted); then maybe keep it as a keyframe."""
+    def process(self, frame: Frame, features: Features, frame_pose: FramePose | None = None) -> PointsOutcome:
+        """Points of ``frame`` (whose ``features`` were just extracted); then maybe keep it as a keyframe.
+
+        ``frame_pose``: a tracking pose source's own pose of the frame (None for the others).
+        A frame it gives no pose gets ``no_pose`` with its reason, and is kept as a keyframe
+        (the odometry may pose it later, e.g. the frames of its initialisation, and later
+        frames then pair with it); a posed frame becomes one when the newest keyframe has no
+        relative pose to it.
+        """
+        if frame_pose is not None and not frame_pose.ok:
+            self.buffer.push(Keyframe(frame, features))
+            return PointsOutcome(FrameStatus.NO_POSE, frame_pose.reason or "the pose source has no pose for this frame")
         outcome = self._pair_and_triangulate(frame, features)
-        self._maybe_add_keyframe(frame, features)
+        self._maybe_add_keyframe(frame, features, frame_pose is not None)
         return outcome
 
     def _pair_and_triangulate(self, frame: Frame, features: Features) -> PointsOutcome:
@@ -139,11 +149,12 @@ class TwoViewPoints:
         outcome.confidence = np.concatenate([p.confidence for _, p in merged])[keep]
         return outcome
 
-    def _maybe_add_keyframe(self, frame: Frame, features: Features) -> None:
+    def _maybe_add_keyframe(self, frame: Frame, features: Features, posed: bool = False) -> None:
         newest = self.buffer.newest
         if newest is None:
             self.buffer.push(Keyframe(frame, features))
             return
         rel = self.pose_source.relative(newest.frame, frame)
-        if rel.ok and Motion.from_transform(rel.T_kf_cur).exceeds(self.pairing, self.pairing.keyframe_fraction):
+        if (rel.ok and Motion.from_transform(rel.T_kf_cur).exceeds(self.pairing, self.pairing.keyframe_fraction)) or (
+                posed and not rel.ok):
             self.buffer.push(Keyframe(frame, features))

@@ -11,6 +11,7 @@ from matchers import Features
 from ..evaluation import PointSourceSpec
 from ..frame import Frame
 from ..keyframes import Motion
+from ..poses import FramePose
 from ..rescale import AffineFit, RescaleResult
 from .status import FrameStatus, PairStatus
 
@@ -156,6 +157,7 @@ class FrameResult:
         backfilled: the result comes from the offline backward pass.
         disparity_valid_fraction: fraction of finite pixels of the disparity map (None
             without a map).
+        frame_pose: the tracking pose source's own pose of the frame (``--poses vio``), or None.
         depth_released: the frame had a depth map that :meth:`without_maps` released
             (``has_depth`` stays True).
     """
@@ -178,6 +180,7 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)
     backfilled: bool = False
     disparity_valid_fraction: float | None = None
+    frame_pose: FramePose | None = field(default=None, repr=False)
     depth_released: bool = field(default=False, repr=False)
 
     @property
@@ -201,8 +204,8 @@ class FrameResult:
 
 
 #: the stages timed by :class:`~vio_depth.pipeline.Pipeline` itself (``points`` includes its
-#: sub-stages ``matching`` and ``triangulation``, also recorded)
-PIPELINE_STAGES = ("image", "disparity", "features", "points", "fit", "depth")
+#: sub-stages ``matching`` and ``triangulation``, also recorded; ``poses``: a tracking pose source)
+PIPELINE_STAGES = ("image", "disparity", "features", "poses", "points", "fit", "depth")
 
 
 @dataclass

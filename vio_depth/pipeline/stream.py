@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from matchers import Features, create_matcher
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_image, check_transform
 from vio_core.errors import InputError
 
 from ..disparity import DisparityKind, check_disparity
 from ..frame import Frame, ImuData
-from ..poses import GroundTruthPoses, ImuPoseSettings, ImuPoseSource, RelativePose
+from ..poses import FramePose, GroundTruthPoses, ImuPoseSettings, ImuPoseSource, RelativePose, VioSettings
+from ..vio import VioPoseSource
 from .pipeline import Pipeline
 from .result import FrameResult
 from .settings import PipelineSettings
@@ -61,9 +63,11 @@ class FrameStream:
         camera: intrinsics of the images.
         settings: pipeline settings; ``settings.poses`` decides what each push needs: the
             ``gt`` source takes ``T_w_c`` (camera-to-world, metres), the ``imu`` source the
-            IMU samples (and ``imu_calibration``), plus ``T_w_c`` when known.
-        imu_calibration: for the ``imu`` pose source: an :class:`~vio_depth.frame.ImuData`
-            whose ``T_c_i``, noise densities and gravity are used (its samples are ignored).
+            IMU samples (and ``imu_calibration``), plus ``T_w_c`` when known; the ``vio``
+            source the IMU samples and ``imu_calibration`` only (a ``T_w_c`` is ignored).
+        imu_calibration: for the ``imu`` and ``vio`` pose sources: an
+            :class:`~vio_depth.frame.ImuData` whose ``T_c_i``, noise densities and gravity
+            are used (its samples are ignored).
     """
 
     def __init__(self, camera: Camera, settings: PipelineSettings | None = None, *,
@@ -78,14 +82,20 @@ class FrameStream:
         self._imu_t: list[np.ndarray] = []
         self._imu_gyro: list[np.ndarray] = []
         self._imu_accel: list[np.ndarray] = []
-        self._imu_source: ImuPoseSource | None = None
-        if isinstance(settings.poses, ImuPoseSettings):
+        self._imu_source: ImuPoseSource | VioPoseSource | None = None
+        self._matcher = None
+        if isinstance(settings.poses, (ImuPoseSettings, VioSettings)):
             if imu_calibration is None:
-                raise InputError("the imu pose source needs imu_calibration (an ImuData with T_c_i and noise densities)")
-            pose_source = _LazyImuPoses(self)
+                raise InputError(f"the {'vio' if isinstance(settings.poses, VioSettings) else 'imu'} pose source "
+                                 "needs imu_calibration (an ImuData with T_c_i and noise densities)")
+            if isinstance(settings.poses, VioSettings):
+                self._matcher = create_matcher(settings.matcher)
+                pose_source = _LazyVioPoses(self, self._matcher)
+            else:
+                pose_source = _LazyImuPoses(self)
         else:
             pose_source = GroundTruthPoses(settings.poses)
-        self.pipeline = Pipeline(settings, pose_source, self._disparity)
+        self.pipeline = Pipeline(settings, pose_source, self._disparity, matcher=self._matcher)
 
     @property
     def settings(self) -> PipelineSettings:
@@ -149,7 +159,10 @@ class FrameStream:
                       cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk, cal.accel_bias_walk,
                       cal.gravity_w)
         if self._imu_source is None:
-            self._imu_source = ImuPoseSource(imu, self._history, self.settings.poses)
+            if isinstance(self.settings.poses, VioSettings):
+                self._imu_source = VioPoseSource(imu, self._matcher, self.settings.poses)
+            else:
+                self._imu_source = ImuPoseSource(imu, self._history, self.settings.poses)
         else:
             self._imu_source.update_samples(imu)
 
@@ -167,3 +180,29 @@ class _LazyImuPoses:
         if source is None:
             return RelativePose(None, ok=False, reason="no IMU samples pushed yet")
         return source.relative(keyframe, current)
+
+
+class _LazyVioPoses:
+    """The odometry of a stream, created when the first IMU samples arrive."""
+
+    name = "vio"
+
+    def __init__(self, stream: FrameStream, matcher):
+        self._stream = stream
+        self.matcher = matcher
+
+    def track(self, frame: Frame, features: Features) -> FramePose:
+        source = self._stream._imu_source
+        if source is None:
+            return FramePose(None, ok=False, status="initialising", reason="no IMU samples pushed yet")
+        return source.track(frame, features)
+
+    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
+        source = self._stream._imu_source
+        if source is None:
+            return RelativePose(None, ok=False, reason="no IMU samples pushed yet")
+        return source.relative(keyframe, current)
+
+    def world_pose(self, frame: Frame):
+        source = self._stream._imu_source
+        return None if source is None else source.world_pose(frame)

@@ -9,20 +9,32 @@ module             job
 ``preintegration`` gtsam IMU preintegration, the bias/velocity window fit
 ``imu``            ``imu``: :class:`ImuPoseSource`
 ``static_init``    still interval, roll/pitch and gyroscope bias from the IMU alone
-``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`
+``vio_settings``   :class:`VioSettings` of the ``vio`` source (:mod:`vio_depth.vio`)
+``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`, :func:`register_pose_source`
 =================  ===========================================================================
 """
 
-from .base import PoseSource, RelativePose
+from .base import FramePose, PoseSource, RelativePose, TrackingPoseSource
 from .groundtruth import GroundTruthPoses, GroundTruthPoseSettings
 from .imu import ImuPoseSource
 from .imu_state import ImuPoseSettings, NavEstimate
-from .preintegration import ImuIntegration, WindowFit, fit_window, integrate_interval, preintegration_params
-from .registry import POSE_PRESETS, PoseSettings, create_pose_source
+from .preintegration import (
+    ImuIntegration,
+    WindowFit,
+    adjoint,
+    fit_window,
+    gravity_aligned_rotation,
+    integrate_interval,
+    preintegrate,
+    preintegration_params,
+)
+from .registry import POSE_PRESETS, PoseSettings, create_pose_source, register_pose_source
 from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
+from .vio_settings import VioInitSettings, VioSettings
 
 __all__ = [
     "POSE_PRESETS",
+    "FramePose",
     "GroundTruthPoseSettings",
     "GroundTruthPoses",
     "ImuIntegration",
@@ -34,11 +46,18 @@ __all__ = [
     "RelativePose",
     "StaticInit",
     "StaticInitSettings",
+    "TrackingPoseSource",
+    "VioInitSettings",
+    "VioSettings",
     "WindowFit",
+    "adjoint",
     "create_pose_source",
     "detect_still_interval",
     "fit_window",
+    "gravity_aligned_rotation",
     "integrate_interval",
+    "preintegrate",
     "preintegration_params",
+    "register_pose_source",
     "static_initialisation",
 ]

@@ -4,14 +4,21 @@ between a keyframe and a later frame.
 The pipeline only needs the relative pose ``T_kf_cur`` (current camera to keyframe
 camera, metres) and, when known, its uncertainty. Sources: :mod:`.groundtruth` (the
 sequence's poses) and :mod:`.imu` (IMU preintegration); :mod:`.registry` chooses by name.
+
+A :class:`TrackingPoseSource` (visual-inertial odometry, :mod:`vio_depth.vio`) estimates
+the poses itself from the frames: the pipeline hands it every frame, in order, with the
+frame's features (extracted once, by the pipeline's matcher) before it asks for relative
+poses, and records the source's own :class:`FramePose` of the frame.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+from matchers import Features, Matcher
 
 from ..frame import Frame
 
@@ -40,3 +47,45 @@ class PoseSource(Protocol):
 
     def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
         """Relative pose between ``keyframe`` (earlier) and ``current``."""
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """A tracking pose source's own estimate of one frame.
+
+    Attributes:
+        T_w_c: (4, 4) camera-to-world pose in the source's world frame (metres), or None.
+        covariance: (6, 6) covariance of ``T_w_c`` relative to the source's newest keyframe
+            (right perturbation, rotation rad first, then metres), or None.
+        ok: True when ``T_w_c`` is trusted; otherwise the frame has no pose.
+        status: the source's state at this frame (e.g. ``tracking``, ``initialising``).
+        reason: why there is no pose, or what is special about it ("" when nothing).
+    """
+
+    T_w_c: np.ndarray | None
+    covariance: np.ndarray | None = None
+    ok: bool = True
+    status: str = ""
+    reason: str = ""
+
+
+@runtime_checkable
+class TrackingPoseSource(Protocol):
+    """A pose source that estimates the poses from the frames (and the IMU) itself.
+
+    ``matcher`` is the matcher whose features it needs: the pipeline extracts every
+    frame's features with it (once) and calls :meth:`track` for each frame in order,
+    before any :meth:`relative` call involving that frame.
+    """
+
+    name: str
+    matcher: Matcher
+
+    def track(self, frame: Frame, features: Features) -> FramePose:
+        """Process the next frame; its pose (or why it has none)."""
+
+    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
+        """Relative pose between two tracked frames (either order in time)."""
+
+    def world_pose(self, frame: Frame) -> np.ndarray | None:
+        """(4, 4) the source's latest camera-to-world pose of a tracked frame, or None."""

@@ -106,6 +106,34 @@ def _bias(gtsam, accel_bias, gyro_bias):
     return gtsam.imuBias.ConstantBias(np.asarray(accel_bias, float), np.asarray(gyro_bias, float))
 
 
+def preintegrate(imu: ImuData, t0: float, t1: float, params, accel_bias, gyro_bias,
+                 max_gap: float) -> tuple[object | None, str]:
+    """``gtsam.PreintegratedCombinedMeasurements`` of the samples from ``t0`` to ``t1`` seconds.
+
+    Args:
+        imu, params: samples and gtsam parameters (:func:`preintegration_params`).
+        t0, t1: seconds, ``t0 <= t1``.
+        accel_bias, gyro_bias: (3,) m/s^2 and rad/s, the linearisation point of the biases.
+        max_gap: largest accepted gap between IMU samples, seconds.
+
+    Returns:
+        ``(pim, "")`` or ``(None, reason)`` when the IMU does not cover the interval.
+    """
+    gtsam = _gtsam()
+    if not t1 >= t0:
+        return None, f"end time {t1:.3f} s is before start time {t0:.3f} s"
+    pim = gtsam.PreintegratedCombinedMeasurements(params, _bias(gtsam, accel_bias, gyro_bias))
+    if t1 > t0:
+        pieces, reason = _pieces(imu, t0, t1, max_gap)
+        if pieces is None:
+            return None, reason
+        _, acc, gyr, dts = pieces
+        for a, w, dt in zip(acc, gyr, dts):  # one gtsam call per IMU sample
+            if dt > 0:
+                pim.integrateMeasurement(a, w, float(dt))
+    return pim, ""
+
+
 def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
                        settings: ImuPoseSettings = ImuPoseSettings()) -> tuple[ImuIntegration | None, str]:
     """Preintegrate the IMU from ``start.t`` to ``t1`` seconds and predict the state at ``t1``.
@@ -135,15 +163,9 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
     if params is None:
         params = preintegration_params(imu, settings)
     bias = _bias(gtsam, start.accel_bias, start.gyro_bias)
-    pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
-    if t1 > t0:
-        pieces, reason = _pieces(imu, t0, t1, settings.max_sample_gap_s)
-        if pieces is None:
-            return None, reason
-        _, acc, gyr, dts = pieces
-        for a, w, dt in zip(acc, gyr, dts):  # one gtsam call per IMU sample
-            if dt > 0:
-                pim.integrateMeasurement(a, w, float(dt))
+    pim, reason = preintegrate(imu, t0, t1, params, start.accel_bias, start.gyro_bias, settings.max_sample_gap_s)
+    if pim is None:
+        return None, reason
     state0 = gtsam.NavState(gtsam.Rot3(start.T_w_i[:3, :3]), start.T_w_i[:3, 3].copy(), start.velocity_w.copy())
     H_bias = np.zeros((9, 6), order="F")  # d(end state (rotation, position, velocity; end frame)) / d(accel, gyro bias)
     state1 = pim.predict(state0, bias, np.zeros((9, 9), order="F"), H_bias)

@@ -75,6 +75,7 @@ class FrameRecord:
     backfilled: bool | None = None
     disparity_valid_fraction: float | None = None
     predicted_error: float | None = None
+    pose_status: str | None = None
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -112,6 +113,7 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         disparity_valid_fraction=(None if result.disparity_valid_fraction is None
                                   or result.disparity_valid_fraction >= 1.0
                                   else round(result.disparity_valid_fraction, 5)),
+        pose_status=None if result.frame_pose is None else result.frame_pose.status or None,
         seconds=round(result.seconds, 4),
         timings={k: round(v, 5) for k, v in result.timings.items()},
     )

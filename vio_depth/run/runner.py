@@ -254,7 +254,9 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     point_rows = [e.points for e in evaluations if e is not None and e.points is not None]
     if point_rows:
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
-    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m)
+    tracker = pipeline.tracker  # a pose source with its own world poses (--poses vio): its latest estimates
+    world = None if tracker is None else {i: tracker.world_pose(sequence[i]) for i in range(n)}
+    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m, world)
     summary.trajectory = trajectory.to_json()
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()

@@ -16,6 +16,11 @@ with ``--poses imu`` on a posed sequence each pose is the IMU prediction from it
 so ATE and RPE measure the poses the triangulation used. Frames without a relative pose
 (the first frame, ``no_pose``) get no line.
 
+A tracking pose source (``--poses vio``) has its own world poses: then the trajectory is
+the source's latest pose of each frame it posed (``world_poses``, read at the end of the
+run: for the odometry, each frame relative to its keyframe as last estimated by the
+fixed-lag smoother, the frames of its initialisation included), never a sequence pose.
+
 When the sequence has poses (its ground truth), :func:`run_trajectory` also gives the ATE
 (SE(3)-aligned, no scale correction) and the RPE over ``rpe_delta_m`` metres of path, with
 the definitions of :mod:`vio_depth.evaluation.trajectory`.
@@ -57,8 +62,15 @@ class TrajectoryReport:
                 "rpe": None if self.rpe is None else self.rpe.to_json(), "note": self.note}
 
 
-def used_poses(sequence: Sequence, results: dict[int, FrameResult]) -> CameraTrajectory:
-    """The camera-to-world poses the run's relative poses imply (see the module docstring)."""
+def used_poses(sequence: Sequence, results: dict[int, FrameResult],
+               world_poses: dict[int, np.ndarray | None] | None = None) -> CameraTrajectory:
+    """The camera-to-world poses the run's relative poses imply, or, given ``world_poses``
+    (frame index -> (4, 4) or None: a tracking pose source's own poses), those (see the
+    module docstring)."""
+    if world_poses is not None:
+        keep = sorted(i for i in results if world_poses.get(i) is not None)
+        return CameraTrajectory(np.array([results[i].timestamp for i in keep], dtype=np.float64),
+                                np.stack([world_poses[i] for i in keep]) if keep else np.zeros((0, 4, 4)))
     frames = {i: sequence[i] for i in results}
     poses: dict[int, np.ndarray] = {}
     origin = min(results, default=0)
@@ -90,9 +102,11 @@ def used_poses(sequence: Sequence, results: dict[int, FrameResult]) -> CameraTra
                             np.stack([poses[i] for i in keep]) if keep else np.zeros((0, 4, 4)))
 
 
-def run_trajectory(sequence: Sequence, results: dict[int, FrameResult], rpe_delta_m: float) -> TrajectoryReport:
-    """The run's trajectory, with ATE and RPE against the sequence's poses when it has them."""
-    est = used_poses(sequence, results)
+def run_trajectory(sequence: Sequence, results: dict[int, FrameResult], rpe_delta_m: float,
+                   world_poses: dict[int, np.ndarray | None] | None = None) -> TrajectoryReport:
+    """The run's trajectory, with ATE and RPE against the sequence's poses when it has them
+    (``world_poses``: a tracking pose source's own poses, see :func:`used_poses`)."""
+    est = used_poses(sequence, results, world_poses)
     ref = CameraTrajectory.from_optional_poses(np.array([sequence[i].timestamp for i in sorted(results)]),
                                                [sequence[i].T_w_c for i in sorted(results)])
     if len(ref) == 0:

@@ -43,10 +43,10 @@ def test_a_frame_without_pose_gives_a_status_not_an_exception():
 
 
 def test_registry_by_name_or_settings():
-    assert set(POSE_PRESETS) == {"gt", "imu", "imu_real_mav"} and POSE_PRESETS.default == "gt"
+    assert set(POSE_PRESETS) == {"gt", "imu", "imu_real_mav", "vio"} and POSE_PRESETS.default == "gt"
     assert isinstance(create_pose_source("gt"), GroundTruthPoses)
     assert isinstance(create_pose_source(GroundTruthPoseSettings()), GroundTruthPoses)
-    with pytest.raises(UnknownNameError, match="gt, imu, imu_real_mav"):
+    with pytest.raises(UnknownNameError, match="gt, imu, imu_real_mav, vio"):
         create_pose_source("gps")
     with pytest.raises(InputError, match="no IMU.*no gyroscope.*--poses gt"):
         create_pose_source(ImuPoseSettings(), _NoImu())

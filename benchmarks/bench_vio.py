@@ -1,0 +1,141 @@
+"""Visual-inertial odometry (``--poses vio``): trajectory accuracy, scale, speed and dense depth,
+with the sequences' poses withheld, against ``--poses gt`` in the same run.
+
+For each bundled SIMULATED sample (``street``: default pairing; ``room``: ``--pairing indoor``,
+evaluation cap 10 m, as in the README) two full runs (``run_sequence``, offline backfill on):
+
+* ``gt`` -- the named baseline: the sequence's exact poses;
+* ``vio`` -- the odometry from the images and the IMU alone (the poses are only read by the
+  evaluation: tests/vio_depth/vio/test_vio_runs.py proves scrambled poses change nothing).
+
+Columns: frames with metric depth, dense AbsRel (and the ratio to ``gt``), ATE RMSE (SE(3)
+alignment, no scale correction) in metres and as a fraction of the distance travelled, RPE
+over 1 m, the Sim(3) scale error (how far the metric scale is off), frames the odometry
+posed when they were processed (the others -- its initialisation, the scale still
+converging -- get their pose in the backward pass), and the odometry's own time per frame
+(``poses`` stage: tracking, window updates; feature extraction excluded) as frames per second.
+
+With ``../shared/data/euroc_v101_static`` present (skipped otherwise): the **real** static
+start -- the odometry on the 95 still frames of EuRoC V1_01 with the real 200 Hz IMU: when it
+starts, its roll/pitch against the ground truth, and how far the still camera's estimate
+wanders; then ``benchmarks/bench_imu.py``'s IMU-only propagation error on the whole real
+IMU stream (the ``imu`` preset row: what the IMU alone gives, without images).
+
+    python benchmarks/bench_vio.py                      # both samples + EuRoC (about 10 min on 2 cores)
+    python benchmarks/bench_vio.py --samples room --no-euroc
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+EUROC = ROOT / ".." / "shared" / "data" / "euroc_v101_static"
+SAMPLES = {"street": dict(pairing=None, max_depth=80.0), "room": dict(pairing="indoor", max_depth=10.0)}
+
+
+def run_sample(name: str, poses: str, out: Path):
+    """``(RunSummary, frame records)`` of one full run."""
+    from vio_depth import Pipeline, PipelineSettings, open_sequence
+    from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
+
+    spec = SAMPLES[name]
+    seq = open_sequence(ROOT / "sample_sequences" / name)
+    settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"])
+    summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=spec["max_depth"]),
+                           progress=False)
+    return summary, read_frames_jsonl(out / "frames.jsonl")[1]
+
+
+def sample_rows(names) -> list[str]:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            res = {p: run_sample(name, p, Path(tmp) / f"{name}_{p}") for p in ("gt", "vio")}
+            gt_abs = res["gt"][0].metrics["sfm"]["abs_rel"]
+            for p, (summary, records) in res.items():
+                m = summary.metrics["sfm"]
+                traj = summary.trajectory
+                ate = traj["ate"]
+                rpe = traj["rpe"]
+                posed_live = sum(1 for r in records if r.get("pose_status") == "tracking" and not r.get("backfilled"))
+                t_poses = [r["timings"]["poses"] for r in records if "poses" in r.get("timings", {})]
+                fps = f"{1.0 / np.mean(t_poses):.1f}" if t_poses else "-"
+                rows.append(
+                    f"| {name} | {p} | {summary.frames_with_depth}/{summary.frames_processed} | {m['abs_rel']:.4f} "
+                    f"| {m['abs_rel'] / gt_abs:.3f} | {ate['ate_m']['rmse']:.4f} | {ate['ate_fraction_of_path']:.2%} "
+                    f"| {'-' if rpe is None else format(rpe['translation_m']['rmse'], '.4f')} "
+                    f"| {ate['sim3_scale'] - 1:+.2%} | {posed_live if p == 'vio' else '-'} | {fps if p == 'vio' else '-'} |")
+    return rows
+
+
+def euroc_static_start() -> list[str]:
+    """The odometry on the real still EuRoC slice: when it starts, its roll/pitch against the
+    ground truth, how far the still camera's estimate wanders."""
+    from matchers import create_matcher
+    from vio_depth.io import open_sequence
+    from vio_depth.poses import POSE_PRESETS
+    from vio_depth.vio import VioPoseSource
+
+    seq = open_sequence(EUROC)
+    matcher = create_matcher("sift")
+    src = VioPoseSource(seq.imu, matcher, POSE_PRESETS["vio"])
+    out = [src.track(f, matcher.extract(f.image())) for f in seq]
+    first = next((i for i, p in enumerate(out) if p.ok), None)
+    if first is None:
+        return [f"| EuRoC V1_01 still slice (real) | no start: {out[-1].reason} | - | - | 0/{len(seq)} |"]
+    tilts = []
+    for f in seq:
+        T = src.world_pose(f)
+        if T is not None and f.T_w_c is not None:
+            up_e, up_g = T[:3, :3].T @ [0, 0, 1], f.T_w_c[:3, :3].T @ [0, 0, 1]
+            tilts.append(np.degrees(np.arccos(np.clip(up_e @ up_g, -1, 1))))
+    posed = [T for T in (src.world_pose(f) for f in seq) if T is not None]
+    gt = [f.T_w_c for f in seq if f.T_w_c is not None]
+    moves = np.linalg.norm(np.stack([T[:3, 3] for T in posed]) - posed[0][:3, 3], axis=1)
+    gt_moves = np.linalg.norm(np.stack([T[:3, 3] for T in gt]) - gt[0][:3, 3], axis=1)
+    return [f"| EuRoC V1_01 still slice (real images and IMU) | {out[first].reason or out[first].status} at frame "
+            f"{first} ({seq[first].timestamp - seq[0].timestamp:.2f} s) | {np.median(tilts):.2f} deg median "
+            f"(max {np.max(tilts):.2f}) | {moves.max() * 100:.1f} cm (ground truth: {gt_moves.max() * 100:.1f} cm) "
+            f"| {len(posed)}/{len(seq)} |"]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", nargs="*", default=list(SAMPLES))
+    parser.add_argument("--no-euroc", action="store_true")
+    args = parser.parse_args(argv)
+    print(f"# machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
+          f"numpy {np.__version__}; timings on a shared machine are indicative only")
+    if args.samples:
+        print("\n| sample (SIMULATED) | poses | frames with depth | AbsRel | / gt | ATE m | ATE / path | RPE 1 m "
+              "| scale error | posed live | odometry fps |")
+        print("|---" * 11 + "|")
+        for row in sample_rows(args.samples):
+            print(row, flush=True)
+    if not args.no_euroc:
+        if not EUROC.is_dir():
+            print(f"\n(EuRoC slice not present at {EUROC}: skipped)")
+        else:
+            print("\n| sequence | start | roll/pitch error vs ground truth | largest move of the still camera "
+                  "| posed frames |")
+            print("|---|---|---|---|---|")
+            for row in euroc_static_start():
+                print(row, flush=True)
+            print("\nIMU-only propagation on the whole real EuRoC V1_01 stream (benchmarks/bench_imu.py, preset imu):")
+            sys.path.insert(0, str(ROOT / "benchmarks"))
+            import bench_imu
+
+            bench_imu.SETTINGS = {"imu": bench_imu.SETTINGS["imu"]}
+            bench_imu.main(["--sequences", "euroc"])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

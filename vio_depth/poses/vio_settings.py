@@ -1,0 +1,169 @@
+"""Settings of the visual-inertial odometry pose source (``--poses vio``).
+
+They live with the other pose settings so that :data:`~vio_depth.poses.POSE_PRESETS` can
+name them; the estimator itself is :mod:`vio_depth.vio` (one layer up: it needs the
+landmark window and the features).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from triangulation.multiview import MultiviewSettings
+from vio_core.errors import SettingsError
+
+from ..landmarks.settings import LandmarkSettings, PosePriorSettings
+from .imu_state import ImuPoseSettings
+from .static_init import StaticInitSettings
+
+
+@dataclass(frozen=True)
+class VioInitSettings:
+    """How the estimator starts from nothing (docs/vio.md, "Initialisation").
+
+    Static start (tried first): the IMU was still for ``static.min_still_s`` seconds up to
+    the frame, and so were the images (median keypoint motion below ``still_flow_px``).
+
+    Dynamic start (VINS-Mono's idea): at least ``min_keyframes`` frames, each with at least
+    ``min_parallax_deg`` of median keypoint motion (rotation removed) after the previous
+    one, spanning at least ``min_duration_s``, are reconstructed up to scale (essential
+    matrix, PnP, bundle adjustment) and aligned with the preintegrated IMU for the
+    gyroscope bias, the scale, gravity and the velocities. It is tried again on every new
+    keyframe while it is refused (beyond ``max_duration_s`` the oldest keyframe is dropped,
+    beyond ``max_keyframes`` the one closest in time to its neighbours; a failed
+    reconstruction drops the oldest):
+
+    Attributes:
+        static: still-interval detection (:class:`~vio_depth.poses.StaticInitSettings`).
+        still_flow_px: largest median keypoint motion of a still camera, pixels.
+        lookback_s: IMU seconds before the frame searched for the still interval.
+        dynamic: allow the dynamic start.
+        min_keyframes / max_keyframes: keyframes of the dynamic start.
+        min_parallax_deg: median keypoint motion between two of them, degrees of view
+            (resolution independent: 1.4 deg is 10 px at a focal length of 420 px).
+        min_duration_s / max_duration_s: time they span.
+        min_landmarks: fewest reconstructed points (``too few tracks``).
+        max_residual_px: largest median reprojection residual of the reconstruction.
+        max_gravity_error: largest ``| |g_est| - |g| |`` before the magnitude is imposed, m/s^2.
+        max_scale_sigma: largest relative 1-sigma of the scale (``too little excitation``).
+        min_acceleration: smallest RMS of the IMU's acceleration change over the keyframes, m/s^2
+            (``too little excitation``: uniform motion leaves the scale unobservable).
+        max_gyro_bias: largest plausible gyroscope bias, rad/s.
+        max_scale_change: largest relative change of the scale between the alignment and the
+            visual-inertial refinement of the same keyframes.
+    """
+
+    static: StaticInitSettings = field(default_factory=StaticInitSettings)
+    still_flow_px: float = 1.0
+    lookback_s: float = 3.0
+    dynamic: bool = True
+    min_keyframes: int = 6
+    max_keyframes: int = 10
+    min_parallax_deg: float = 1.4
+    min_duration_s: float = 0.6
+    max_duration_s: float = 8.0
+    min_landmarks: int = 40
+    max_residual_px: float = 2.0
+    max_gravity_error: float = 1.0
+    max_scale_sigma: float = 0.1
+    min_acceleration: float = 0.15
+    max_gyro_bias: float = 0.2
+    max_scale_change: float = 0.15
+
+    def __post_init__(self):
+        positive = ("still_flow_px", "lookback_s", "min_parallax_deg", "min_duration_s", "max_duration_s",
+                    "max_residual_px", "max_gravity_error", "max_scale_sigma", "max_gyro_bias", "max_scale_change")
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise SettingsError(f"VioInitSettings.{name} must be finite and > 0, got {v!r}")
+        if not 3 <= self.min_keyframes <= self.max_keyframes:
+            raise SettingsError(f"VioInitSettings: need 3 <= min_keyframes <= max_keyframes, got "
+                                f"{self.min_keyframes}, {self.max_keyframes}")
+        if self.min_landmarks < 8:
+            raise SettingsError(f"VioInitSettings.min_landmarks must be >= 8, got {self.min_landmarks}")
+        if not self.min_acceleration >= 0:
+            raise SettingsError(f"VioInitSettings.min_acceleration must be >= 0, got {self.min_acceleration}")
+        if self.max_duration_s <= self.min_duration_s:
+            raise SettingsError("VioInitSettings: max_duration_s must exceed min_duration_s")
+
+
+def _vio_window() -> LandmarkSettings:
+    """The landmark window of the VIO: only the first keyframe is anchored (the IMU factors
+    carry the rest), so its absolute prior is loose; the estimator adds its own gauge prior."""
+    prior = PosePriorSettings(absolute_rotation_deg=10.0, absolute_translation_m=1.0, relative_rotation_deg=1.0,
+                              relative_translation_m=0.1, relative_translation_fraction=0.0,
+                              absolute_on_every_keyframe=False)
+    return LandmarkSettings(pose_prior=prior, multiview=MultiviewSettings(pixel_sigma_px=1.0), window_keyframes=16,
+                            keyframe_relative_sigma=0.1, max_keyframe_gap=10, restart_from_priors=False)
+
+
+@dataclass(frozen=True)
+class VioSettings:
+    """Settings of the visual-inertial odometry pose source (:mod:`vio_depth.vio`).
+
+    Attributes:
+        window: the landmark window (tracks, projection factors, keyframe policy, window
+            length); its pose prior only anchors the first keyframe loosely.
+        imu: IMU noise scales, sample gaps and bias prior sigmas (:class:`ImuPoseSettings`;
+            the fields about sequence poses are not used).
+        init: :class:`VioInitSettings`.
+        velocity_sigma: 1-sigma of a static start's zero velocity, m/s.
+        gauge_sigma_m / gauge_yaw_sigma_rad: prior of the first keyframe's position and yaw
+            (unobservable: they fix the world frame).
+        tilt_sigma_rad: prior 1-sigma of the first keyframe's roll and pitch (beyond the
+            initialisation's own estimate).
+        max_scale_sigma: a frame's pose is trusted only while the window knows the metric scale
+            to this relative 1-sigma (the distance between its oldest and newest keyframe,
+            from the smoother's covariance); before, e.g. just after a start with little
+            excitation, the frame has no pose (status ``converging``) ...
+        min_span_sigma_m: ... unless that 1-sigma is below this many metres (a still or slow
+            camera after a static start: its short span is known well).
+        max_speed_m_s: a faster estimated velocity means the estimate diverged.
+        max_accel_bias / max_gyro_bias: larger estimated biases mean it diverged.
+        max_imu_only_s: longest time without enough landmarks before tracking is lost.
+        min_tracked_landmarks: fewer landmarks in a keyframe counts as "without landmarks".
+        predict_velocity_sigma / predict_gyro_sigma: 1-sigma of the newest keyframe's velocity
+            (m/s) and gyroscope bias (rad/s) in the covariance of a frame's IMU prediction
+            (its pose prior against the landmarks, and its pose when they are too few).
+        epipolar_threshold_px: RANSAC distance of the epipolar gate on every pair's matches
+            (:mod:`vio_depth.vio.matching`), ideal pixels.
+        history_frames: frames whose poses are remembered (for relative poses with old
+            keyframes and the offline backward pass); bounds memory.
+    """
+
+    window: LandmarkSettings = field(default_factory=_vio_window)
+    imu: ImuPoseSettings = field(default_factory=ImuPoseSettings)
+    init: VioInitSettings = field(default_factory=VioInitSettings)
+    velocity_sigma: float = 0.01
+    max_scale_sigma: float = 0.03
+    min_span_sigma_m: float = 0.01
+    gauge_sigma_m: float = 1e-3
+    gauge_yaw_sigma_rad: float = 1e-3
+    tilt_sigma_rad: float = 0.02
+    max_speed_m_s: float = 60.0
+    max_accel_bias: float = 1.0
+    max_gyro_bias: float = 0.2
+    max_imu_only_s: float = 2.0
+    min_tracked_landmarks: int = 10
+    epipolar_threshold_px: float = 1.0
+    predict_velocity_sigma: float = 0.05
+    predict_gyro_sigma: float = 0.002
+    history_frames: int = 20000
+
+    def __post_init__(self):
+        for name in ("velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m", "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s",
+                     "max_accel_bias", "max_gyro_bias", "max_imu_only_s", "epipolar_threshold_px",
+                     "predict_velocity_sigma", "predict_gyro_sigma"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise SettingsError(f"VioSettings.{name} must be finite and > 0, got {v!r}")
+        if self.window.pose_prior.absolute_on_every_keyframe:
+            raise SettingsError("VioSettings.window.pose_prior.absolute_on_every_keyframe must be false: "
+                                "the IMU factors, not sequence poses, carry the window")
+        if self.init.max_keyframes > self.window.window_keyframes:
+            raise SettingsError("VioSettings: init.max_keyframes must not exceed window.window_keyframes "
+                                "(the window starts with every keyframe of the initialisation)")
+        if self.min_tracked_landmarks < 0 or self.history_frames < 1:
+            raise SettingsError("VioSettings: min_tracked_landmarks must be >= 0 and history_frames >= 1")

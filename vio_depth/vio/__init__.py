@@ -1,0 +1,47 @@
+"""Visual-inertial odometry: metric camera poses from the images and the IMU alone (``--poses vio``).
+
+==================  ==========================================================================
+module              job
+==================  ==========================================================================
+``imu_factors``     gtsam ``CombinedImuFactor`` between the landmark window's keyframes
+``sfm``             up-to-scale structure from motion over the first keyframes
+``alignment``       scale, gravity, velocities and gyroscope bias from the IMU (dynamic start)
+``initializer``     static start (still IMU and images), else the dynamic start
+``history``         the estimated poses; relative poses with their covariance
+``estimator``       :class:`VioEstimator`: initialising, tracking, lost, re-initialising
+``source``          :class:`VioPoseSource`, the pipeline's ``vio`` pose source
+==================  ==========================================================================
+
+The settings are :class:`vio_depth.poses.VioSettings` (preset ``vio`` of
+:data:`vio_depth.poses.POSE_PRESETS`); docs/vio.md says what it needs and where it fails.
+Importing this package registers the ``vio`` source with
+:func:`vio_depth.poses.create_pose_source`.
+"""
+
+from .alignment import Alignment, align, estimate_gyro_bias
+from .estimator import VioEstimator, VioFrame, VioStatus
+from .history import PoseHistory, PoseRecord
+from .imu_factors import ImuFactors, KeyframeState
+from .initializer import Candidate, Initializer, InitResult
+from .sfm import SfmKeyframe, SfmResult, reconstruct
+from .source import VioPoseSource
+
+__all__ = [
+    "Alignment",
+    "Candidate",
+    "ImuFactors",
+    "InitResult",
+    "Initializer",
+    "KeyframeState",
+    "PoseHistory",
+    "PoseRecord",
+    "SfmKeyframe",
+    "SfmResult",
+    "VioEstimator",
+    "VioFrame",
+    "VioPoseSource",
+    "VioStatus",
+    "align",
+    "estimate_gyro_bias",
+    "reconstruct",
+]

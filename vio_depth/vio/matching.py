@@ -1,0 +1,56 @@
+"""Matches for the odometry: the pipeline's matcher, then an epipolar RANSAC gate.
+
+Repeated textures (brick walls, tiled floors) give nearest-neighbour matches that look
+right but belong to the neighbouring brick. A projection factor that carries one pulls
+the poses the IMU has to follow; a fundamental-matrix RANSAC over each pair's matches
+(as VINS-Mono does on its optical-flow tracks) removes the matches that disagree with the
+pair's dominant motion. Keypoints are undistorted first (the gate needs pinhole rays).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from matchers import Features, Matcher, Matches
+from vio_core.camera import Camera
+
+
+class EpipolarGatedMatcher:
+    """``matcher`` whose matches pass a fundamental-matrix RANSAC (module docstring).
+
+    Args:
+        matcher: the underlying matcher (extracts and matches).
+        threshold_px: RANSAC inlier distance to the epipolar line, ideal pixels.
+        min_matches: pairs with fewer matches are returned ungated (too few for RANSAC).
+
+    Attributes:
+        camera: the camera of the frames being matched (set by the caller; None: raw pixels).
+    """
+
+    def __init__(self, matcher: Matcher, threshold_px: float = 1.0, min_matches: int = 15):
+        self.matcher = matcher
+        self.threshold_px = float(threshold_px)
+        self.min_matches = int(min_matches)
+        self.camera: Camera | None = None
+        self.name = f"{getattr(matcher, 'name', 'matcher')}+epipolar"
+
+    def extract(self, image) -> Features:
+        return self.matcher.extract(image)
+
+    def match(self, a: Features, b: Features) -> Matches:
+        """Matches of ``a`` with ``b`` that pass the gate."""
+        import cv2
+
+        m = self.matcher.match(a, b)
+        if len(m) < self.min_matches:
+            return m
+        pa = np.asarray(a.keypoints[m.idx_a], np.float64)
+        pb = np.asarray(b.keypoints[m.idx_b], np.float64)
+        if self.camera is not None and self.camera.is_distorted:
+            pa, pb = self.camera.undistort_points(pa), self.camera.undistort_points(pb)
+        cv2.setRNGSeed(0)  # RANSAC draws from OpenCV's global generator: the same result on every call
+        F, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, self.threshold_px, 0.999)
+        if F is None or mask is None or F.shape != (3, 3):
+            return m
+        keep = mask.ravel().astype(bool)
+        return Matches(m.idx_a[keep], m.idx_b[keep], m.confidence[keep])
