@@ -28,8 +28,7 @@ from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
-from .overlap import (OrderedWriter, Prefetcher, blas_threads, opencv_threads, overlap_opencv_threads,
-                      prefetch_workers)
+from .overlap import OrderedWriter, Prefetcher, blas_threads, opencv_threads, overlap_opencv_threads, prefetch_workers
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
