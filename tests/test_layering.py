@@ -161,3 +161,25 @@ def test_every_public_name_is_exported_by_its_package():
 def test_no_module_is_over_500_lines():
     long = {m: n for m, p in _modules().items() if (n := len(p.read_text().splitlines())) > 500}
     assert not long, long
+
+
+#: optional heavy dependencies: the only imports allowed inside a function (imported where selected)
+LAZY_IMPORTS = {"torch", "torchvision", "kornia", "transformers", "onnxruntime", "onnx", "gtsam", "matplotlib", "ray",
+                "sklearn", "skimage", "plyfile", "evo", "safetensors", "PIL", "huggingface_hub"}
+
+
+def test_imports_inside_functions_are_only_optional_heavy_dependencies():
+    inside = []
+    for name, path in _modules().items():
+        for fn in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    tops = [a.name.split(".")[0] for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    tops = ["." * node.level + (node.module or "")] if node.level else [node.module.split(".")[0]]
+                else:
+                    continue
+                inside += [f"{name}:{node.lineno} imports {t}" for t in tops if t not in LAZY_IMPORTS]
+    assert not sorted(set(inside)), sorted(set(inside))

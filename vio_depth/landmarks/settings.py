@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from triangulation.multiview import MultiviewSettings
 from vio_core.errors import SettingsError
 from vio_core.settings import Presets
@@ -70,8 +72,6 @@ class PosePriorSettings:
 
     def relative_sigmas(self, translation_m: float):
         """(6,) 1-sigma of a relative pose: rotation (rad) x 3, then translation (m) per axis."""
-        import numpy as np
-
         t = self.relative_translation_sigma(translation_m)
         return np.array([math.radians(self.relative_rotation_deg)] * 3 + [t * a for a in self.relative_translation_axes])
 

@@ -9,6 +9,7 @@ pair's dominant motion. Keypoints are undistorted first (the gate needs pinhole 
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from matchers import Features, Matcher, Matches
@@ -39,8 +40,6 @@ class EpipolarGatedMatcher:
 
     def match(self, a: Features, b: Features) -> Matches:
         """Matches of ``a`` with ``b`` that pass the gate."""
-        import cv2
-
         m = self.matcher.match(a, b)
         if len(m) < self.min_matches:
             return m

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from triangulation.multiview import MultiviewSettings, triangulate_tracks
@@ -100,8 +101,6 @@ def _triangulate(obs, keyframes, poses: dict[int, np.ndarray]):
 
 def _essential(keyframes, obs, i: int, j: int):
     """Relative pose ``T_ci_cj`` (unit translation) of keyframes ``i`` and ``j`` from their common tracks."""
-    import cv2
-
     a = obs.frame == i
     b = obs.frame == j
     common, ia, ib = np.intersect1d(obs.track[a], obs.track[b], return_indices=True)
@@ -121,8 +120,6 @@ def _essential(keyframes, obs, i: int, j: int):
 
 def _pnp(keyframe: SfmKeyframe, obs, track_ids, points, valid, frame: int):
     """Pose ``T_c0_c`` of ``keyframe`` from its observations of triangulated tracks, or None."""
-    import cv2
-
     sel = obs.frame == frame
     rows = np.searchsorted(track_ids, obs.track[sel]) if len(track_ids) else np.zeros(0, np.int64)
     rows = np.clip(rows, 0, max(len(track_ids) - 1, 0))
