@@ -15,7 +15,7 @@ colour camera and registered Kinect depth), per 30-frame bin:
   trajectory, within +-``--max-shift`` frames, that brings the trajectory closest to the
   PnP pose, and the remaining difference: is a colour/depth time offset the cause?
 
-Run: ``python benchmarks/diag_7scenes_poses.py [--data DIR] [--gap 6] [--step 5]``.
+Run: ``python benchmarks/diag_sevenscenes_poses.py [--data DIR] [--gap 6] [--step 5]``.
 """
 
 from __future__ import annotations
