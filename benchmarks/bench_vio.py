@@ -64,7 +64,8 @@ def sample_rows(names) -> list[str]:
                 traj = summary.trajectory
                 ate = traj["ate"]
                 rpe = traj["rpe"]
-                posed_live = sum(1 for r in records if r.get("pose_status") == "tracking" and not r.get("backfilled"))
+                posed_live = sum(1 for r in records
+                                 if r.get("pose_status") in ("tracking", "still") and not r.get("backfilled"))
                 t_poses = [r["timings"]["poses"] for r in records if "poses" in r.get("timings", {})]
                 fps = f"{1.0 / np.mean(t_poses):.1f}" if t_poses else "-"
                 rows.append(

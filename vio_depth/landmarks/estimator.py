@@ -139,6 +139,10 @@ class LandmarkEstimator:
         self._last_tracked = len(points)
         return FrameLandmarks(points, True, reason, n_matches, rel, update)
 
+    def keyframe_features(self, frame_id: int):
+        """The ``matchers.Features`` of a keyframe in the window (None for any other frame)."""
+        return self._features.get(int(frame_id))
+
     def insert_keyframe(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
         """Insert a keyframe directly (e.g. the keyframes of a VIO initialisation), bypassing the policy.
 

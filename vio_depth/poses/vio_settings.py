@@ -131,6 +131,14 @@ class VioSettings:
             (:mod:`vio_depth.vio.matching`), ideal pixels.
         history_frames: frames whose poses are remembered (for relative poses with old
             keyframes and the offline backward pass); bounds memory.
+        still_translation_sigma_m: 1-sigma of a resting frame's position relative to the newest
+            keyframe, metres. A frame rests when the IMU was still for
+            ``init.static.min_still_s``, its keypoints moved less than ``init.still_flow_px``
+            since the previous frame and less than ``max_rest_flow_px`` since the newest
+            keyframe (rotation removed): it keeps the keyframe's position, its orientation
+            follows the gyroscope, and the window is not updated, so a resting camera
+            neither drifts on the IMU alone nor loses tracking for lack of parallax.
+        max_rest_flow_px: see ``still_translation_sigma_m``, pixels.
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)
@@ -151,11 +159,14 @@ class VioSettings:
     predict_velocity_sigma: float = 0.05
     predict_gyro_sigma: float = 0.002
     history_frames: int = 20000
+    still_translation_sigma_m: float = 0.005
+    max_rest_flow_px: float = 3.0
 
     def __post_init__(self):
-        for name in ("velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m", "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s",
+        for name in ("velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m", "gauge_yaw_sigma_rad",
+                     "tilt_sigma_rad", "max_speed_m_s",
                      "max_accel_bias", "max_gyro_bias", "max_imu_only_s", "epipolar_threshold_px",
-                     "predict_velocity_sigma", "predict_gyro_sigma"):
+                     "predict_velocity_sigma", "predict_gyro_sigma", "still_translation_sigma_m", "max_rest_flow_px"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise SettingsError(f"VioSettings.{name} must be finite and > 0, got {v!r}")

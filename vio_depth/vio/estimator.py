@@ -14,6 +14,10 @@ States (:class:`VioStatus`), per frame:
 * ``converging``: tracking, but the window does not know the metric scale to
   ``max_scale_sigma`` yet (e.g. just after a start with little excitation): the frame has
   **no pose** now (it keeps one in the history, for the offline backward pass);
+* ``still``: tracking, and the IMU and the images say the camera rests: the frame takes the
+  newest keyframe's pose (a zero-velocity update in its simplest form, as OpenVINS detects
+  rest from the IMU and the feature motion); the window is not updated, so a resting
+  camera neither drifts on the IMU alone nor loses tracking for lack of parallax;
 * ``imu_only``: tracking, but the frame's pose could not be refined against landmarks
   (too few): the IMU prediction is used, trusted for at most ``max_imu_only_s``;
 * ``lost``: the estimate diverged (speed, biases beyond plausible bounds) or had no visual
@@ -46,11 +50,11 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import LandmarkEstimator
-from ..poses import VioSettings, adjoint
+from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitResult
-from .matching import EpipolarGatedMatcher
+from .matching import EpipolarGatedMatcher, rotation_free_flow
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +65,7 @@ class VioStatus(str, enum.Enum):
     INITIALISING = "initialising"
     CONVERGING = "converging"
     TRACKING = "tracking"
+    STILL = "still"
     IMU_ONLY = "imu_only"
     LOST = "lost"
 
@@ -119,6 +124,9 @@ class VioEstimator:
         self._times: dict[int, float] = {}
         self._last_visual_t = -np.inf
         self._last_id: int | None = None
+        # (id, t, features) of the previous frame, and the last frame that got a pose (rest tests)
+        self._previous: tuple[int, float, Features] | None = None
+        self._posed_previous: int | None = None
         #: the landmark window's last update and the last initialisation (diagnostics)
         self.last_update = None
         self.last_init: InitResult | None = None
@@ -264,6 +272,13 @@ class VioEstimator:
     # ------------------------------------------------------------------ per frame
     def process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         """Process the next frame (ids and times increasing)."""
+        out = self._process(frame_id, t, camera, features)
+        self._previous = (int(frame_id), float(t), features)
+        if out.T_w_c is not None or out.status == VioStatus.CONVERGING:  # posed (converging: kept in the history)
+            self._posed_previous = int(frame_id)
+        return out
+
+    def _process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         if self._last_id is not None and frame_id <= self._last_id:
             raise InputError(f"vio: frames must come in order, got {frame_id} after {self._last_id}")
         self._last_id = int(frame_id)
@@ -291,10 +306,79 @@ class VioEstimator:
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
 
+    def _still_pose(self, t: float, camera: Camera, features: Features, newest: int):
+        """``(T_w_c (4, 4), rotation-free flow px)`` when the camera rests at ``t``, else None.
+
+        At rest: the IMU was still for ``init.static.min_still_s`` seconds up to ``t``, and
+        the keypoints moved less than ``init.still_flow_px`` since the previous frame once
+        the gyroscope's rotation is removed (a 1 px test against the newest keyframe fails
+        on real rests, where the platform settles by millimetres: EuRoC V1_01 drifts 1-2 px
+        over 3 s), and less than ``max_rest_flow_px`` since the newest keyframe (a slow creep
+        adds up). The pose is keyframe ``newest``'s IMU position (zero velocity since it)
+        with its orientation turned by the gyroscope (the keyframe's bias): a resting
+        platform may still tilt.
+        """
+        s = self.settings
+        st = s.init.static
+        prev = self._previous
+        if prev is None or prev[0] != self._posed_previous:
+            return None  # rest continues a posed frame only
+        t0 = max(float(self.imu.t[0]), t - st.min_still_s - st.window_s)
+        window = self.imu.window(t0, t)
+        if len(window.t) < 10:
+            return None
+        t_start, t_end = detect_still_interval(window, replace(st, start_s=0.0))
+        if t_end - t_start < st.min_still_s - 1e-6 or t_end < t - st.window_s - 1e-6:
+            return None
+        state = self._newest_state()
+        pim, _ = preintegrate(self.imu, state.t, t, self.factors.params, state.accel_bias, state.gyro_bias,
+                              s.imu.max_sample_gap_s)
+        pim_prev, _ = preintegrate(self.imu, prev[1], t, self.factors.params, state.accel_bias, state.gyro_bias,
+                                   s.imu.max_sample_gap_s)
+        if pim is None or pim_prev is None:
+            return None
+        m = self.matcher.match(features, prev[2])
+        if len(m) < s.min_tracked_landmarks:
+            return None
+        T_i_c = invert_transform(self.factors.T_c_i)
+        R_c_i = self.factors.T_c_i[:3, :3]
+        R_prev_cur = R_c_i @ pim_prev.deltaRij().matrix() @ R_c_i.T  # the camera's rotation since the previous frame
+        flow = rotation_free_flow(features.keypoints[m.idx_a], prev[2].keypoints[m.idx_b], camera, camera, R_prev_cur)
+        if flow > s.init.still_flow_px:
+            return None
+        kf = self.landmarks.keyframe_features(newest)  # a slow creep adds up: bounded since the keyframe
+        m_kf = None if kf is None else self.matcher.match(features, kf)
+        if m_kf is None or len(m_kf) < s.min_tracked_landmarks:
+            return None
+        R_kf_cur = R_c_i @ pim.deltaRij().matrix() @ R_c_i.T
+        creep = rotation_free_flow(features.keypoints[m_kf.idx_a], kf.keypoints[m_kf.idx_b], camera, camera, R_kf_cur)
+        if creep > s.max_rest_flow_px:
+            return None
+        T_kf_i = np.eye(4)
+        T_kf_i[:3, :3] = pim.deltaRij().matrix()  # IMU rotation since the keyframe, position unchanged
+        return state.T_w_i @ T_kf_i @ T_i_c, flow
+
+    def _still_frame(self, frame_id: int, t: float, camera: Camera, newest: int, T_w_c, flow: float) -> VioFrame:
+        """A resting camera's frame: its pose from :meth:`_still_pose`, with a covariance relative
+        to keyframe ``newest`` from the image motion allowed (rotation) and
+        ``still_translation_sigma_m``; the window is not updated."""
+        s = self.settings
+        rot_sigma = s.init.still_flow_px / max(camera.fx, camera.fy)
+        C = np.diag([rot_sigma ** 2] * 3 + [s.still_translation_sigma_m ** 2] * 3)
+        self.history.add_frame(frame_id, self.session, newest, T_w_c, C)
+        self._last_visual_t = t  # the images confirm the rest
+        st = self._newest_state()
+        return VioFrame(frame_id, VioStatus.STILL, f"at rest: IMU still, keypoints moved {flow:.2f} px since the "
+                                                   f"previous frame (rotation removed); position of keyframe {newest}",
+                        self.history.pose(frame_id), C, False, 0, st.velocity_w, st.accel_bias, st.gyro_bias)
+
     def _track(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         s = self.settings
         w = self.landmarks.window
         newest = w.keyframe_ids[-1]
+        rest = self._still_pose(t, camera, features, newest)
+        if rest is not None:
+            return self._trusted(self._still_frame(frame_id, t, camera, newest, *rest))
         state = self._newest_state()
         pred, pred_cov, reason = self.factors.predict(state, t)
         if pred is None:
@@ -304,7 +388,8 @@ class VioEstimator:
         # the prediction's uncertainty: preintegration noise, and the newest keyframe's velocity
         # and biases (not in the window's pose marginals) through the elapsed time
         dt = t - state.t
-        C_prior = pred_cov + np.diag([(s.predict_gyro_sigma * dt) ** 2] * 3 + [(s.predict_velocity_sigma * dt) ** 2] * 3)
+        C_prior = pred_cov + np.diag([(s.predict_gyro_sigma * dt) ** 2] * 3
+                                     + [(s.predict_velocity_sigma * dt) ** 2] * 3)
         try:
             fl = self.landmarks.process(frame_id, t, camera, T_prior, features, prior_covariance=C_prior)
         except (InputError, RuntimeError) as exc:

@@ -36,6 +36,7 @@ from ..landmarks import FrameMatches
 from ..poses import StaticInitSettings, VioSettings, preintegrate, static_initialisation
 from .alignment import Alignment, align
 from .imu_factors import KeyframeState
+from .matching import rotation_free_flow
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 
 #: fewer matches with the previous candidate than this restarts the candidates
@@ -119,17 +120,8 @@ class Initializer:
                                                   axis=1)))
         R_ci = self.imu.T_c_i[:3, :3]
         R_prev_cur = R_ci @ pim.deltaRij().matrix() @ R_ci.T  # camera rotation, current -> previous
-        cam_c, cam_p = cur.camera, prev.camera
-        ic = cam_c.undistort_points(np.asarray(cur.features.keypoints[m.idx_a], float))
-        ip = cam_p.undistort_points(np.asarray(prev.features.keypoints[m.idx_b], float))
-        rays = np.column_stack([(ic[:, 0] - cam_c.cx) / cam_c.fx, (ic[:, 1] - cam_c.cy) / cam_c.fy, np.ones(len(ic))])
-        r = rays @ R_prev_cur.T
-        front = r[:, 2] > 1e-6
-        if not front.any():
-            return 0.0
-        pred = np.column_stack([cam_p.fx * r[front, 0] / r[front, 2] + cam_p.cx,
-                                cam_p.fy * r[front, 1] / r[front, 2] + cam_p.cy])
-        return float(np.median(np.linalg.norm(pred - ip[front], axis=1)))
+        return rotation_free_flow(cur.features.keypoints[m.idx_a], prev.features.keypoints[m.idx_b], cur.camera,
+                                  prev.camera, R_prev_cur)
 
     def _static(self, cur: Candidate) -> InitResult | None:
         """A static start at ``cur``, or None when the IMU or the images are not still."""

@@ -1,4 +1,5 @@
-"""Matches for the odometry: the pipeline's matcher, then an epipolar RANSAC gate.
+"""Matches for the odometry: the pipeline's matcher, then an epipolar RANSAC gate; and the
+rotation-free image motion of a pair (:func:`rotation_free_flow`).
 
 Repeated textures (brick walls, tiled floors) give nearest-neighbour matches that look
 right but belong to the neighbouring brick. A projection factor that carries one pulls
@@ -14,6 +15,37 @@ import numpy as np
 
 from matchers import Features, Matcher, Matches
 from vio_core.camera import Camera
+from vio_core.checks import check_array
+
+
+def rotation_free_flow(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera, R_prev_cur) -> float:
+    """Median pixel motion of matched keypoints once the camera's rotation is removed.
+
+    Args:
+        kp_cur: (N, 2) raw pixels in the current image. kp_prev: (N, 2) raw pixels of the
+            same points in the previous image.
+        camera_cur, camera_prev: their cameras (keypoints are undistorted first).
+        R_prev_cur: (3, 3) rotation of the current camera into the previous one (e.g. from
+            the gyroscope).
+
+    Returns:
+        the median distance (pixels of ``camera_prev``) between the previous keypoints and the
+        current ones rotated into the previous image; 0.0 when no ray lies in front.
+    """
+    kp_cur = check_array("kp_cur", kp_cur, (None, 2))
+    kp_prev = check_array("kp_prev", kp_prev, (len(kp_cur), 2))
+    R = check_array("R_prev_cur", R_prev_cur, (3, 3), finite=True)
+    ic = camera_cur.undistort_points(np.asarray(kp_cur, float))
+    ip = camera_prev.undistort_points(np.asarray(kp_prev, float))
+    rays = np.column_stack([(ic[:, 0] - camera_cur.cx) / camera_cur.fx, (ic[:, 1] - camera_cur.cy) / camera_cur.fy,
+                            np.ones(len(ic))])
+    r = rays @ R.T
+    front = r[:, 2] > 1e-6
+    if not front.any():
+        return 0.0
+    pred = np.column_stack([camera_prev.fx * r[front, 0] / r[front, 2] + camera_prev.cx,
+                            camera_prev.fy * r[front, 1] / r[front, 2] + camera_prev.cy])
+    return float(np.median(np.linalg.norm(pred - ip[front], axis=1)))
 
 
 class EpipolarGatedMatcher:

@@ -162,3 +162,27 @@ def test_frames_must_come_in_order_and_settings_are_checked():
         VioSettings(max_scale_sigma=0.0)
     with pytest.raises(SettingsError, match="max_keyframes"):
         VioSettings(init=VioInitSettings(max_keyframes=20))
+
+
+def test_a_resting_camera_keeps_its_position_and_does_not_lose_tracking():
+    """Still for 3.5 s, much longer than ``max_imu_only_s`` after the static start at 1 s: no
+    landmark can be triangulated, yet every frame after the start rests (status ``still``) at
+    the start's position, none is lost; once the motion starts the frames are tracked again."""
+    scene = make_scene(duration_s=5.0, still_s=3.5, seed=2)
+    est, out = _run(scene)
+    start = next(i for i, v in enumerate(out) if v.initialised)
+    resting = [i for i, f in enumerate(scene.frames) if start < i and f.timestamp < 3.4]
+    assert len(resting) > 40 and 3.4 - scene.frames[start].timestamp > SETTINGS.max_imu_only_s
+    assert all(out[i].status == VioStatus.STILL and out[i].ok for i in resting), \
+        {out[i].status.value for i in resting}
+    p0 = out[start].T_w_c[:3, 3]
+    assert max(np.linalg.norm(out[i].T_w_c[:3, 3] - p0) for i in resting) < 1e-3
+    assert max(np.linalg.norm(out[i].T_w_c[:3, 3] - scene.T_w_c[i][:3, 3] - (p0 - scene.T_w_c[start][:3, 3]))
+               for i in resting) < 1e-3  # the true camera rests too
+    assert VioStatus.LOST not in {v.status for v in out}
+    assert all(v.ok and v.status == VioStatus.TRACKING for v in out[-5:])
+
+
+def test_rest_settings_are_checked():
+    with pytest.raises(SettingsError, match="max_rest_flow_px"):
+        replace(SETTINGS, max_rest_flow_px=0.0)
