@@ -6,6 +6,7 @@ this package imports none of them (tests/test_layering.py checks it).
 
 from .camera import Camera
 from .checks import check_array, check_image, check_transform
+from .environment import environ
 from .errors import (
     InputError,
     MissingDependencyError,
@@ -31,6 +32,7 @@ from .settings import Presets, override, to_plain, toml_dumps, toml_loads
 
 __all__ = [
     "Camera",
+    "environ",
     "Presets",
     "InputError",
     "MissingDependencyError",

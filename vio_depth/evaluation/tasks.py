@@ -58,6 +58,7 @@ from typing import Callable, Iterator, Mapping
 import numpy as np
 from tqdm import tqdm
 
+from vio_core.environment import environ
 from vio_core.errors import MissingDependencyError, SettingsError, UnknownNameError, VioDepthError
 
 #: executor kinds of :class:`ExecutorSettings`
@@ -274,16 +275,8 @@ def _thread_env(threads: int | None) -> Iterator[None]:
     if threads is None:
         yield
         return
-    saved = {k: os.environ.get(k) for k in THREAD_ENV_VARS}
-    os.environ.update({k: str(threads) for k in THREAD_ENV_VARS})
-    try:
+    with environ({k: str(threads) for k in THREAD_ENV_VARS}):
         yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _progress_bar(total: int, initial: int, enabled: bool | None):

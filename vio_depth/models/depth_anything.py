@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from vio_core.checks import check_image
+from vio_core.environment import environ
 from vio_core.errors import InputError, MissingDependencyError, SettingsError, UnknownNameError
 
 from .original_checkpoint import (
@@ -285,17 +285,8 @@ def _resolve_torch_device(settings: DepthAnythingSettings, path: Path) -> str:
 @contextlib.contextmanager
 def _hub_offline():
     """Set HF_HUB_OFFLINE / TRANSFORMERS_OFFLINE for the duration of a load, then restore."""
-    names = ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE")
-    saved = {k: os.environ.get(k) for k in names}
-    os.environ.update({k: "1" for k in names})
-    try:
+    with environ({"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}):
         yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _load_transformers_folder(path: Path, settings: DepthAnythingSettings) -> DepthAnythingModel:
