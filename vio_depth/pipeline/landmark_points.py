@@ -14,6 +14,7 @@ from matchers import Features, Matcher
 
 from ..frame import Frame
 from ..landmarks import LandmarkEstimator, LandmarkSettings
+from ..poses import FramePose
 from .result import LandmarkInfo, PointsOutcome
 from .status import FrameStatus
 
@@ -34,8 +35,9 @@ class LandmarkPointsStage:
         self.estimator = LandmarkEstimator(settings, matcher)
         self._count = 0
 
-    def process(self, frame: Frame, features: Features) -> PointsOutcome:
-        """The landmarks ``frame`` sees (its ``features`` were just extracted)."""
+    def process(self, frame: Frame, features: Features, frame_pose: FramePose | None = None) -> PointsOutcome:
+        """The landmarks ``frame`` sees (its ``features`` were just extracted). ``frame_pose``
+        (a tracking pose source's) is not used: the window takes the sequence's poses as priors."""
         if frame.T_w_c is None:
             return PointsOutcome(FrameStatus.NO_POSE, "the landmark window needs the frame's pose (a prior)")
         out = self.estimator.process(self._count, frame.timestamp, frame.camera, frame.T_w_c, features)

@@ -131,10 +131,8 @@ class Pipeline:
             timings["poses"] = clock() - t
         t = clock()
         spec = self.settings.points
-        if isinstance(self.points, TwoViewPoints):
+        if self.points is not None:
             points = self.points.process(frame, features, frame_pose)
-        elif self.points is not None:
-            points = self.points.process(frame, features)
         else:
             gt = frame.gt_depth()
             if gt is None:
