@@ -28,7 +28,7 @@ from .geometry import (
     transform_to_tum,
 )
 from .npyfile import load_array
-from .settings import Presets, override, to_plain, toml_dumps, toml_loads
+from .settings import Presets, override, require_positive, to_plain, toml_dumps, toml_loads
 
 __all__ = [
     "Camera",
@@ -49,6 +49,7 @@ __all__ = [
     "lookup",
     "make_transform",
     "override",
+    "require_positive",
     "relative_transform",
     "rotation_angle_deg",
     "skew",

@@ -89,6 +89,16 @@ class Presets(Mapping[str, T], Generic[T]):
 
 
 # --------------------------------------------------------------------------- overrides
+def require_positive(settings, *names: str, finite: bool = True) -> None:
+    """Raise :class:`SettingsError` naming the first of the fields ``names`` of ``settings``
+    (a settings dataclass) that is not > 0 (and, with ``finite``, not finite)."""
+    for name in names:
+        v = getattr(settings, name)
+        if not (v > 0 and (not finite or math.isfinite(v))):
+            what = "finite and > 0" if finite else "> 0"
+            raise SettingsError(f"{type(settings).__name__}.{name} must be {what}, got {v!r}")
+
+
 def _field_types(cls) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 

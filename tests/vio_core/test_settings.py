@@ -66,3 +66,23 @@ def test_plain_dict_and_toml_round_trip():
     assert back == s
     with pytest.raises(SettingsError, match="invalid TOML"):
         toml_loads("x = = 1", "cfg.toml")
+
+
+def test_require_positive_names_the_class_and_field():
+    from dataclasses import dataclass
+
+    from vio_core import require_positive
+
+    @dataclass
+    class Knobs:
+        a: float = 1.0
+        b: float = 2.0
+
+    require_positive(Knobs(), "a", "b")
+    with pytest.raises(SettingsError, match=r"Knobs\.b must be finite and > 0, got 0\.0"):
+        require_positive(Knobs(b=0.0), "a", "b")
+    with pytest.raises(SettingsError, match="Knobs.a"):
+        require_positive(Knobs(a=float("nan")), "a", finite=False)
+    with pytest.raises(SettingsError, match="Knobs.a"):
+        require_positive(Knobs(a=float("inf")), "a")
+    require_positive(Knobs(a=float("inf")), "a", finite=False)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vio_core.errors import SettingsError
+from vio_core.settings import require_positive
 
 
 @dataclass(frozen=True)
@@ -84,10 +85,8 @@ class ImuPoseSettings:
     velocity_pose_sigma_m: float = 1.0e-4
 
     def __post_init__(self):
-        for name in ("accel_noise_scale", "gyro_noise_scale", "pose_sigma_m", "pose_sigma_rad",
-                     "accel_bias_prior_sigma", "gyro_bias_prior_sigma", "velocity_pose_sigma_m"):
-            if not getattr(self, name) > 0:
-                raise SettingsError(f"ImuPoseSettings.{name} must be positive, got {getattr(self, name)}")
+        require_positive(self, "accel_noise_scale", "gyro_noise_scale", "pose_sigma_m", "pose_sigma_rad",
+                         "accel_bias_prior_sigma", "gyro_bias_prior_sigma", "velocity_pose_sigma_m", finite=False)
         if not self.bias_scatter_window_s >= 0:
             raise SettingsError(f"ImuPoseSettings.bias_scatter_window_s must be >= 0, got {self.bias_scatter_window_s}")
 

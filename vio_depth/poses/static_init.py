@@ -38,6 +38,7 @@ import numpy as np
 
 from vio_core.checks import check_array
 from vio_core.errors import SettingsError
+from vio_core.settings import require_positive
 
 from ..frame import ImuData
 from .preintegration import gravity_aligned_rotation
@@ -69,10 +70,8 @@ class StaticInitSettings:
     start_s: float = 0.0
 
     def __post_init__(self):
-        for name in ("window_s", "accel_tolerance", "gyro_tolerance", "max_gyro_rate", "max_gravity_mismatch",
-                     "min_still_s"):
-            if not getattr(self, name) > 0:
-                raise SettingsError(f"StaticInitSettings.{name} must be positive, got {getattr(self, name)}")
+        require_positive(self, "window_s", "accel_tolerance", "gyro_tolerance", "max_gyro_rate", "max_gravity_mismatch",
+                         "min_still_s", finite=False)
         if self.start_s < 0:
             raise SettingsError(f"StaticInitSettings.start_s must be >= 0, got {self.start_s}")
 

@@ -7,11 +7,11 @@ landmark window and the features).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from triangulation.multiview import MultiviewSettings
 from vio_core.errors import SettingsError
+from vio_core.settings import require_positive
 
 from ..landmarks.settings import LandmarkSettings, PosePriorSettings
 from .imu_state import ImuPoseSettings
@@ -72,12 +72,8 @@ class VioInitSettings:
     max_scale_change: float = 0.15
 
     def __post_init__(self):
-        positive = ("still_flow_px", "lookback_s", "min_parallax_deg", "min_duration_s", "max_duration_s",
-                    "max_residual_px", "max_gravity_error", "max_scale_sigma", "max_gyro_bias", "max_scale_change")
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise SettingsError(f"VioInitSettings.{name} must be finite and > 0, got {v!r}")
+        require_positive(self, "still_flow_px", "lookback_s", "min_parallax_deg", "min_duration_s", "max_duration_s",
+                         "max_residual_px", "max_gravity_error", "max_scale_sigma", "max_gyro_bias", "max_scale_change")
         if not 3 <= self.min_keyframes <= self.max_keyframes:
             raise SettingsError(f"VioInitSettings: need 3 <= min_keyframes <= max_keyframes, got "
                                 f"{self.min_keyframes}, {self.max_keyframes}")
@@ -163,13 +159,10 @@ class VioSettings:
     max_rest_flow_px: float = 3.0
 
     def __post_init__(self):
-        for name in ("velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m", "gauge_yaw_sigma_rad",
-                     "tilt_sigma_rad", "max_speed_m_s",
-                     "max_accel_bias", "max_gyro_bias", "max_imu_only_s", "epipolar_threshold_px",
-                     "predict_velocity_sigma", "predict_gyro_sigma", "still_translation_sigma_m", "max_rest_flow_px"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise SettingsError(f"VioSettings.{name} must be finite and > 0, got {v!r}")
+        require_positive(self, "velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m",
+                         "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s", "max_accel_bias", "max_gyro_bias",
+                         "max_imu_only_s", "epipolar_threshold_px", "predict_velocity_sigma", "predict_gyro_sigma",
+                         "still_translation_sigma_m", "max_rest_flow_px")
         if self.window.pose_prior.absolute_on_every_keyframe:
             raise SettingsError("VioSettings.window.pose_prior.absolute_on_every_keyframe must be false: "
                                 "the IMU factors, not sequence poses, carry the window")

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vio_core.errors import InputError, SettingsError
-from vio_core.settings import Presets
+from vio_core.settings import Presets, require_positive
 
 from .affine import AffineFit, RansacSettings
 from .depthmap import depth_sigma_map, metric_depth, predicted_relative_error
@@ -69,9 +69,7 @@ class RescalerSettings:
     def __post_init__(self):
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
-        for name in ("max_fallback_error", "max_fit_error"):
-            if not getattr(self, name) > 0:
-                raise SettingsError(f"RescalerSettings.{name} must be > 0 (relative), got {getattr(self, name)!r}")
+        require_positive(self, "max_fallback_error", "max_fit_error", finite=False)  # relative errors
 
 
 #: Named rescaler presets (``[rescaler] preset = ...`` in a config file).
