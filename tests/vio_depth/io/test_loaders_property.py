@@ -276,35 +276,8 @@ def test_templates_are_valid_sequences(kind, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("kind", ["native", "kitti", "7scenes", "tum", "asl"])
 @SETTINGS
 @given(mutations=MUTATIONS)
-def test_native_loader_never_tracebacks_hangs_or_writes(base, mutations):
-    check_loader("native", mutations, base)
-
-
-@pytest.mark.slow
-@SETTINGS
-@given(mutations=MUTATIONS)
-def test_kitti_loader_never_tracebacks_hangs_or_writes(base, mutations):
-    check_loader("kitti", mutations, base)
-
-
-@pytest.mark.slow
-@SETTINGS
-@given(mutations=MUTATIONS)
-def test_7scenes_loader_never_tracebacks_hangs_or_writes(base, mutations):
-    check_loader("7scenes", mutations, base)
-
-
-@pytest.mark.slow
-@SETTINGS
-@given(mutations=MUTATIONS)
-def test_tum_loader_never_tracebacks_hangs_or_writes(base, mutations):
-    check_loader("tum", mutations, base)
-
-
-@pytest.mark.slow
-@SETTINGS
-@given(mutations=MUTATIONS)
-def test_asl_loader_never_tracebacks_hangs_or_writes(base, mutations):
-    check_loader("asl", mutations, base)
+def test_loader_never_tracebacks_hangs_or_writes(base, kind, mutations):
+    check_loader(kind, mutations, base)
