@@ -160,11 +160,12 @@ class Camera:
         """Project ``points_c: (N, 3)`` metres (camera frame, z forward) to ideal pixels.
 
         Returns ``uv: (N, 2)`` pixels of the undistorted pinhole image and
-        ``depth: (N,)`` metres (z). Points with z <= 0 get NaN pixel coordinates.
+        ``depth: (N,)`` metres (z). Points with z <= 0 get NaN pixel coordinates; a point
+        just in front of the camera may project to +-inf (no warning).
         """
         p = check_array("points_c", points_c, (None, 3))
         z = p[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             u = np.where(z > 0, self.fx * p[:, 0] / z + self.cx, np.nan)
             v = np.where(z > 0, self.fy * p[:, 1] / z + self.cy, np.nan)
         return np.stack([u, v], axis=1), z

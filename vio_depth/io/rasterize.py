@@ -24,10 +24,10 @@ def rasterize_depth(points_c, camera: Camera) -> np.ndarray:
     if len(p) == 0:
         return depth
     uv, z = camera.project(p)
-    col = np.round(uv[:, 0]).astype(np.int64)
-    row = np.round(uv[:, 1]).astype(np.int64)
-    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-    col, row, z = col[inside], row[inside], z[inside]
+    uv = np.round(uv)
+    # bounds tested on the floats: a point just in front of the camera projects to +-inf
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    col, row, z = uv[inside, 0].astype(np.int64), uv[inside, 1].astype(np.int64), z[inside]
     order = np.argsort(-z, kind="stable")  # far first: nearer points overwrite them
     depth[row[order], col[order]] = z[order]
     return depth
