@@ -22,7 +22,8 @@ leave over (:func:`overlap_opencv_threads`: 1 on 2 cores), since on 2 shared cor
 second thread slowed SIFT down, and the BLAS pool (numpy's OpenBLAS: descriptor matching,
 fits) to one thread (:func:`blas_threads`): its idle threads spin while waiting for work,
 and beside the prefetch threads that cost a quarter of the run's CPU time
-(docs/benchmarks.md, "Throughput").
+(docs/benchmarks.md, "Throughput"). For the same reason torch's pool (SIFT's bfloat16
+descriptor screen) runs on one thread while several prefetch threads run (:class:`TorchThreads`).
 
 Guarantees:
 
@@ -46,6 +47,7 @@ from __future__ import annotations
 import contextlib
 import os
 import queue
+import sys
 import threading
 from typing import Any, Callable, Iterable, Iterator
 
@@ -111,6 +113,42 @@ def blas_threads(n: int | None) -> Iterator[None]:
         return
     with threadpool_limits(limits=int(n), user_api="blas"):
         yield
+
+
+class TorchThreads:
+    """Context: torch's intra-op thread pool limited to ``n`` threads (None: unchanged) from
+    the moment torch is loaded until the context ends, then restored. torch's setting is
+    process-wide.
+
+    A run limits it when several prefetch threads keep every core busy with SIFT: torch then
+    only runs SIFT's bfloat16 descriptor screen (:mod:`matchers.nearest`) in the pipeline
+    lane, and its idle OpenMP threads would spin beside SIFT like OpenBLAS's. The matcher
+    imports torch on its first large product, during the run, so the run calls
+    :meth:`poll` after each frame; torch is never imported here.
+    """
+
+    def __init__(self, n: int | None):
+        self.n = n
+        self._torch = None
+        self._before: int | None = None
+
+    def poll(self) -> None:
+        """Apply the limit if torch has been loaded since the last call (cheap otherwise)."""
+        if self.n is None or self._torch is not None:
+            return
+        torch = sys.modules.get("torch")
+        if torch is not None and hasattr(torch, "set_num_threads"):  # not half-imported
+            self._torch, self._before = torch, torch.get_num_threads()
+            torch.set_num_threads(int(self.n))
+
+    def __enter__(self) -> "TorchThreads":
+        self.poll()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._torch is not None:
+            self._torch.set_num_threads(self._before)
+            self._torch = self._before = None
 
 
 class Prefetcher:

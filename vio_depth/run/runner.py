@@ -28,7 +28,15 @@ from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
 from .outputs import RunOutputs
-from .overlap import OrderedWriter, Prefetcher, blas_threads, opencv_threads, overlap_opencv_threads, prefetch_workers
+from .overlap import (
+    OrderedWriter,
+    Prefetcher,
+    blas_threads,
+    opencv_threads,
+    overlap_opencv_threads,
+    prefetch_workers,
+    TorchThreads,
+)
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .summary import RunSummary, summary_of_folder
@@ -109,8 +117,10 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     try:
         workers = _prefetch_workers(pipeline) if overlap else 1
         with opencv_threads(overlap_opencv_threads(workers) if overlap else None), \
-                blas_threads(1 if overlap else None):
-            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers)
+                blas_threads(1 if overlap else None), \
+                TorchThreads(1 if overlap and workers > 1 else None) as torch_threads:
+            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers,
+                           torch_threads)
         folder.commit()
     except BaseException:
         folder.release()
@@ -141,9 +151,11 @@ def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features 
 
 
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
-         plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1) -> RunSummary:
+         plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1,
+         torch_threads: TorchThreads | None = None) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
-    outputs, all written into ``folder.staging``."""
+    outputs, all written into ``folder.staging``; ``torch_threads`` is polled after each frame
+    (a matcher may load torch during the run)."""
     out_dir = folder.staging
     outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
@@ -206,6 +218,8 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             for i in bar:
                 prepared = frames.get()
                 res = pipeline.process_prepared(prepared)
+                if torch_threads is not None:
+                    torch_threads.poll()
                 results[i] = res
                 writer.submit(write_job(i, prepared.frame, res))
                 with_depth += res.has_depth

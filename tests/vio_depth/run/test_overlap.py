@@ -4,6 +4,7 @@ and an interruption leaves no half-written file and a resumable staging folder."
 
 import json
 import os
+import sys
 import threading
 import time
 from pathlib import Path
@@ -267,3 +268,22 @@ def test_blas_threads_are_limited_for_the_duration_and_restored():
     assert counts() == before
     with blas_threads(None):
         assert counts() == before
+
+
+def test_torch_threads_are_limited_once_torch_is_loaded_and_restored(monkeypatch):
+    torch = pytest.importorskip("torch")
+    from vio_depth.run.overlap import TorchThreads
+
+    before = torch.get_num_threads()
+    monkeypatch.delitem(sys.modules, "torch")  # torch not loaded yet when the run starts
+    with TorchThreads(1) as limit:
+        assert torch.get_num_threads() == before
+        monkeypatch.setitem(sys.modules, "torch", torch)  # a matcher loads it on its first product
+        limit.poll()
+        assert torch.get_num_threads() == 1
+        limit.poll()
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    with TorchThreads(None) as limit:
+        limit.poll()
+        assert torch.get_num_threads() == before
