@@ -7,6 +7,7 @@ module                 job
 =====================  ======================================================================
 ``base``               :class:`Features`, :class:`Matches`, the :class:`Matcher` protocol
 ``sift``               :class:`SiftMatcher`, :class:`SiftSettings`
+``nearest``            exact two nearest neighbours of descriptors (float32, bfloat16 screen)
 ``learned_settings``   :class:`LearnedMatcherSettings`
 ``learned``            :class:`LearnedMatcher` (kornia, bundled weights)
 ``weights``            locating and loading the bundled weights offline
