@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import functools
 import importlib.util
-import sys
 import threading
 from collections.abc import Callable
 
@@ -76,30 +75,30 @@ def _cpu_has_bfloat16() -> bool:
 #: ``"auto"``'s speed policy (every backend gives the same result, so it changes no output).
 #: Development machine, one thread, ms per ratio match float32 / bfloat16 (both directions):
 #: 1 000 x 1 000 2.6 / 2.5, 1 500 x 1 500 5.5 / 4.1, 2 500 x 2 500 15.9 / 11.0,
-#: 4 000 x 4 000 41.0 / 23.7. The screen is used for products of at least
-#: :data:`AUTO_BFLOAT16_MIN_PRODUCT` similarities once torch is loaded; importing torch
-#: (about 1 s, once per process) is only worth it for products of at least
-#: :data:`AUTO_IMPORT_MIN_PRODUCT` (real 1242x375 images at 4 000 features per image).
-AUTO_BFLOAT16_MIN_PRODUCT = 1200 * 1200
-AUTO_IMPORT_MIN_PRODUCT = 3000 * 3000
+#: 4 000 x 4 000 41.0 / 23.7. Importing torch costs about 1 s once per process, so the screen
+#: is used only where one side has at least :data:`AUTO_MIN_DESCRIPTORS` descriptors (real
+#: 1242x375 images at the default 4 000 features; not the rendered samples' ~1 500) and the
+#: product has at least :data:`AUTO_MIN_PRODUCT` similarities. The rule depends only on the
+#: sizes, never on what the process imported before.
+AUTO_MIN_DESCRIPTORS = 3000
+AUTO_MIN_PRODUCT = 1200 * 1200
 
 
-def resolve_backend(backend: str, n_products: int | None = None) -> str:
-    """The backend that computes a product of ``n_products`` similarities (None: a large one).
+def resolve_backend(backend: str, n_x: int | None = None, n_y: int | None = None) -> str:
+    """The backend that compares ``n_x`` with ``n_y`` descriptors (None: a large product).
 
     ``"auto"`` is ``"bfloat16"`` where bfloat16 is native (torch installed, CPU with
-    AMX/AVX512-BF16) and the product is large enough (see :data:`AUTO_BFLOAT16_MIN_PRODUCT`
-    and :data:`AUTO_IMPORT_MIN_PRODUCT`), else ``"float32"``; the other names are kept.
-    Unknown names raise :class:`SettingsError` listing the valid ones.
+    AMX/AVX512-BF16) and the product is large enough (:data:`AUTO_MIN_DESCRIPTORS`,
+    :data:`AUTO_MIN_PRODUCT`), else ``"float32"``; the other names are kept. Unknown names
+    raise :class:`SettingsError` listing the valid ones.
     """
     if backend not in NEAREST_BACKENDS:
         raise SettingsError(f"unknown nearest-neighbour backend {backend!r}; valid: {', '.join(NEAREST_BACKENDS)}")
     if backend != "auto":
         return backend
-    if n_products is not None:
-        loaded = "torch" in sys.modules
-        if n_products < (AUTO_BFLOAT16_MIN_PRODUCT if loaded else AUTO_IMPORT_MIN_PRODUCT):
-            return "float32"
+    if n_x is not None and n_y is not None and (
+            max(n_x, n_y) < AUTO_MIN_DESCRIPTORS or n_x * n_y < AUTO_MIN_PRODUCT):
+        return "float32"
     return "bfloat16" if bfloat16_is_native() else "float32"
 
 
@@ -258,7 +257,7 @@ def nearest_two_rows(
     y = np.ascontiguousarray(check_array("y", y, (None, x.shape[1]), dtype=np.float32))
     if len(y) < 2:
         raise ShapeError(f"nearest_two_rows needs at least 2 rows in y, got {len(y)}")
-    backend = resolve_backend(backend, len(x) * len(y))
+    backend = resolve_backend(backend, len(x), len(y))
     if backend == "bfloat16" and len(x) and (x.min() < 0 or y.min() < 0):
         backend = "float32"  # the screen's error bound needs non-negative products
     nn = np.zeros(len(x), np.int64)

@@ -9,7 +9,6 @@ import importlib.util
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -137,22 +136,18 @@ def test_negative_descriptors_use_float32_whatever_the_backend():
 
 
 def test_backend_names_and_auto(monkeypatch):
-    pytest.importorskip("torch")
     with pytest.raises(SettingsError, match="valid: auto, float32, bfloat16"):
         resolve_backend("bf16")
     with pytest.raises(SettingsError, match="nearest_backend 'fast'"):
         SiftSettings(nearest_backend="fast")
     assert resolve_backend("float32") == "float32"
     assert resolve_backend("auto") in ("float32", "bfloat16")
-    native = nearest.bfloat16_is_native()
-    large = "bfloat16" if native else "float32"
-    assert resolve_backend("auto", 1000 * 1000) == "float32"  # small products: float32 is as fast
-    assert resolve_backend("auto", 2000 * 2000) == large  # torch is loaded in this process
-    monkeypatch.setattr(nearest, "sys", SimpleNamespace(modules={}))  # a process without torch loaded:
-    assert resolve_backend("auto", 2000 * 2000) == "float32"  # not worth importing torch for
-    assert resolve_backend("auto", 4000 * 4000) == large
-    monkeypatch.undo()
-    assert resolve_backend("bfloat16", 10) == "bfloat16"  # asked for by name: kept
+    large = "bfloat16" if nearest.bfloat16_is_native() else "float32"
+    assert resolve_backend("auto", 1500, 1500) == "float32"  # the rendered samples: not worth importing torch
+    assert resolve_backend("auto", 4000, 4000) == large  # real 1242x375 images
+    assert resolve_backend("auto", 1300, 4000) == large  # the reverse direction of their matching
+    assert resolve_backend("auto", 100, 4000) == "float32"  # a small product
+    assert resolve_backend("bfloat16", 10, 10) == "bfloat16"  # asked for by name: kept
     monkeypatch.setattr(nearest.importlib.util, "find_spec", lambda name: None)  # torch not installed
     assert resolve_backend("auto") == "float32"
 
