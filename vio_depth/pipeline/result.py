@@ -158,7 +158,7 @@ class FrameResult:
         disparity_valid_fraction: fraction of finite pixels of the disparity map (None
             without a map).
         frame_pose: the tracking pose source's own pose of the frame (``--poses vio``), or None.
-        depth_released: the frame had a depth map that :meth:`without_maps` released
+        depth_released: the frame had a depth map that :meth:`without_arrays` released
             (``has_depth`` stays True).
     """
 
@@ -187,10 +187,15 @@ class FrameResult:
     def has_depth(self) -> bool:
         return self.depth is not None or self.depth_released
 
-    def without_maps(self) -> "FrameResult":
-        """A copy without the (H, W) depth and disparity maps, for keeping every frame's result
-        over a long run in constant memory per frame (points, fit and statuses are kept)."""
-        return replace(self, depth=None, disparity=None, depth_released=self.has_depth)
+    def without_arrays(self) -> "FrameResult":
+        """A copy for keeping every frame's result over a long run in small constant memory
+        per frame: without the (H, W) depth and disparity maps and without the per-point
+        arrays (``points_*`` and the points stage's ``uv``, ``depth``, ``sigma``,
+        ``confidence``); statuses, fit, poses, pairs and timings are kept."""
+        points = replace(self.points, uv=np.zeros((0, 2), self.points.uv.dtype),
+                         depth=np.zeros(0, self.points.depth.dtype), sigma=None, confidence=None)
+        return replace(self, depth=None, disparity=None, depth_released=self.has_depth, points=points,
+                       points_uv=None, points_depth=None, points_sigma=None, points_inlier=None)
 
     @property
     def fit(self) -> AffineFit | None:

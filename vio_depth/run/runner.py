@@ -198,7 +198,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
                                       f"result than the interrupted run ({diff}); give --overwrite to start over")
             elif journal:
                 folder.append(done[i][0].to_json())
-            results[i] = res.without_maps()  # every frame's result is kept: without its (H, W) maps
+            results[i] = res.without_arrays()  # every frame's result is kept: without maps and point arrays
         return job
 
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
