@@ -1,5 +1,7 @@
 """Pipeline on a short slice of the bundled street sample (SIMULATED disparity)."""
 
+import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +90,21 @@ def test_image_is_read_once_per_frame_even_with_a_model_disparity_source():
         frame.load_image = lambda original=original: reads.append(1) or original()
         pipe.process(frame)
     assert len(reads) == 3
+
+
+def test_without_arrays_keeps_what_a_run_needs_and_no_array():
+    """A run keeps every finished frame's result: without its maps and point arrays (memory
+    per frame stays small; a view of a point array would keep the whole array alive)."""
+    seq = open_sequence(STREET)
+    pipe = Pipeline(sequence=seq)
+    results = [pipe.process(seq[i]) for i in range(4)]
+    res = results[-1]
+    assert res.has_depth and len(res.points.uv) > 50
+    light = res.without_arrays()
+    assert light.has_depth and light.depth is None and light.disparity is None
+    assert light.status == res.status and light.fit == res.fit and light.points.partners == res.points.partners
+    k, T = light.points.relative_pose
+    assert k == res.points.relative_pose[0] and np.array_equal(T, res.points.relative_pose[1])
+    assert light.points_uv is None and light.points.sigma is None and len(light.points.uv) == 0
+    assert light.points.uv.base is None and light.points.depth.base is None  # not views of the full arrays
+    assert len(pickle.dumps(light)) * 3 < len(pickle.dumps(replace(res, depth=None, disparity=None)))
