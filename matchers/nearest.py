@@ -73,14 +73,15 @@ def _cpu_has_bfloat16() -> bool:
 
 
 #: ``"auto"``'s speed policy (every backend gives the same result, so it changes no output).
-#: Development machine, one thread, ms per ratio match float32 / bfloat16 (both directions):
-#: 1 000 x 1 000 2.6 / 2.5, 1 500 x 1 500 5.5 / 4.1, 2 500 x 2 500 15.9 / 11.0,
-#: 4 000 x 4 000 41.0 / 23.7. Importing torch costs about 1 s once per process, so the screen
-#: is used only where one side has at least :data:`AUTO_MIN_DESCRIPTORS` descriptors (real
-#: 1242x375 images at the default 4 000 features; not the rendered samples' ~1 500) and the
+#: ``python benchmarks/bench_nearest.py`` (development machine, one thread as in an
+#: overlapped run, real KITTI descriptors), ms per ratio match float32 / bfloat16:
+#: 1 000 x 1 000 3.2 / 2.2, 2 000 x 2 000 13.5 / 6.5, 4 000 x 4 000 58.7 / 24.3.
+#: Importing torch costs about 1 s once per process, so the screen is used only where one
+#: side has at least :data:`AUTO_MIN_DESCRIPTORS` descriptors (real images at the default
+#: 4 000 features: KITTI, indoor 640x480; not the rendered street sample's ~1 500) and the
 #: product has at least :data:`AUTO_MIN_PRODUCT` similarities. The rule depends only on the
 #: sizes, never on what the process imported before.
-AUTO_MIN_DESCRIPTORS = 3000
+AUTO_MIN_DESCRIPTORS = 2000
 AUTO_MIN_PRODUCT = 1200 * 1200
 
 
