@@ -15,7 +15,7 @@ Per dataset, interleaved ``--repeats`` times (the best of each is reported):
   ``frames.jsonl``, ``trajectory.tum``, ``metrics.json``), the offline backward pass,
   ``--no-evaluation``; the wall time of the whole call. Module imports are not timed (this
   process has them already), including torch, which SIFT matching imports once per process
-  for its bfloat16 screen on images with >= 2 000 features (the import time in a fresh
+  for its bfloat16 screen on images with >= 3 000 features (the import time in a fresh
   process is printed at the start).
 * **paper-reference**: the published pipeline re-implemented
   (``vio_depth.baselines.paper_reference``: OpenCV SIFT at its defaults re-extracted for both

@@ -76,12 +76,14 @@ def _cpu_has_bfloat16() -> bool:
 #: ``python benchmarks/bench_nearest.py`` (development machine, one thread as in an
 #: overlapped run, real KITTI descriptors), ms per ratio match float32 / bfloat16:
 #: 1 000 x 1 000 3.2 / 2.2, 2 000 x 2 000 13.5 / 6.5, 4 000 x 4 000 58.7 / 24.3.
-#: Importing torch costs about 1 s once per process, so the screen is used only where one
-#: side has at least :data:`AUTO_MIN_DESCRIPTORS` descriptors (real images at the default
-#: 4 000 features: KITTI, indoor 640x480; not the rendered street sample's ~1 500) and the
-#: product has at least :data:`AUTO_MIN_PRODUCT` similarities. The rule depends only on the
-#: sizes, never on what the process imported before.
-AUTO_MIN_DESCRIPTORS = 2000
+#: Importing torch costs about 1 s and 200 MB of memory once per process, so the screen is
+#: used only where one side has at least :data:`AUTO_MIN_DESCRIPTORS` descriptors, i.e.
+#: images that fill most of the default 4 000 features (real KITTI 1242x375 frames: 4 000),
+#: and the product has at least :data:`AUTO_MIN_PRODUCT` similarities. Real indoor frames
+#: stay on float32 without importing torch (7-Scenes 640x480: median 1 066 features, at
+#: most 2 045; EuRoC 752x480: about 930), as do the rendered samples (street at 1242x375:
+#: at most ~2 000). The rule depends only on the sizes, never on what the process imported.
+AUTO_MIN_DESCRIPTORS = 3000
 AUTO_MIN_PRODUCT = 1200 * 1200
 
 
