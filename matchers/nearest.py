@@ -68,8 +68,9 @@ def bfloat16_is_native() -> bool:
 
 @functools.cache
 def _cpu_has_bfloat16() -> bool:
-    cpu = _torch().cpu
-    return bool(cpu._is_amx_tile_supported() or cpu._is_avx512_bf16_supported())
+    cpu = _torch().cpu  # the checks are private torch API: absent (older torch) means "no"
+    checks = (getattr(cpu, name, None) for name in ("_is_amx_tile_supported", "_is_avx512_bf16_supported"))
+    return any(bool(check()) for check in checks if check is not None)
 
 
 #: ``"auto"``'s speed policy (every backend gives the same result, so it changes no output).

@@ -177,3 +177,16 @@ def test_small_products_do_not_import_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[2])
     assert out.stdout.strip() == "False", out.stderr
+
+
+@needs_torch
+def test_an_older_torch_without_the_cpu_checks_means_float32(monkeypatch):
+    torch = pytest.importorskip("torch")
+    for name in ("_is_amx_tile_supported", "_is_avx512_bf16_supported"):
+        monkeypatch.delattr(torch.cpu, name, raising=False)
+    nearest._cpu_has_bfloat16.cache_clear()
+    try:
+        assert resolve_backend("auto", 4000, 4000) == "float32"
+    finally:
+        monkeypatch.undo()
+        nearest._cpu_has_bfloat16.cache_clear()
