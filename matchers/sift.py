@@ -153,8 +153,9 @@ def ratio_match(
     neighbour of an ``a`` passing the a -> b test (typically a third of ``b``): the others
     cannot take part in a match. This gives the same matches as the full
     :func:`nearest_two` in both directions (tests/matchers/test_sift.py), for about
-    two thirds of its cost. With the ``"bfloat16"`` screen, rows of ``a`` whose ratio test
-    fails even with the screen's error bounds are not computed exactly.
+    two thirds of its cost. Rows whose ratio test fails even with the error bounds of the
+    backend's fast product are not re-ranked exactly (``keep`` of
+    :func:`matchers.nearest.nearest_two_rows`).
     """
     if not 0.0 < ratio <= 1.0:
         raise InputError(f"ratio must be in (0, 1], got {ratio}")
