@@ -305,6 +305,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=data.DEFAULT_CACHE, help=f"default {data.DEFAULT_CACHE}")
     ap.add_argument("--no-rss", action="store_true", help="skip the 100- vs 1000-frame peak memory runs")
     ap.add_argument("--rss-frames", type=int, nargs=2, default=[100, 1000], metavar=("SHORT", "LONG"))
+    ap.add_argument("--rss-data", choices=["street_kitti", "kitti_tiny"], default="street_kitti",
+                    help="frames of the peak-memory runs: the rendered street (float32 matching) or KITTI-tiny "
+                         "(real, 4 000 features: the bfloat16 screen and torch); default street_kitti")
     ap.add_argument("--no-paper", action="store_true", help="skip the paper-reference baseline")
     ap.add_argument("--png", action="store_true", help="also time the depth PNG encoding per zlib level/strategy")
     args = ap.parse_args(argv)
@@ -339,15 +342,22 @@ def main(argv=None) -> int:
         maps = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((out / "depth").glob("*.png"))[::5]]
         shutil.rmtree(out.parent, ignore_errors=True)
         png_study(maps, args.repeats)
-    if not args.no_rss:
-        rendered = data.prepare_rendered("street_kitti", args.cache)
+    if not args.no_rss and args.rss_data == "kitti_tiny" and data.prepare_kitti_tiny(args.cache) is None:
+        print("\npeak RSS: skipped (../shared/data absent)")
+    elif not args.no_rss:
+        if args.rss_data == "kitti_tiny":
+            source, disparity = data.KITTI_TINY, data.prepare_kitti_tiny(args.cache)
+        else:
+            source = data.prepare_rendered("street_kitti", args.cache)
+            disparity = source / "disparity"
         rss = {}
         for n in args.rss_frames:
-            view = data.make_view(rendered, rendered / "disparity", n, args.cache / f"view_street_kitti_pingpong_{n}")
+            view = data.make_view(source, disparity, n, args.cache / f"view_{args.rss_data}_pingpong_{n}")
             out = Path(tempfile.mkdtemp(prefix="bench_throughput_rss_")) / "out"
             t = time.perf_counter()
             rss[n] = peak_rss_kib(view, out, "kitti")
-            print(f"\npeak RSS of `vio-depth run` over {n} frames of 1242x375 (ping-pong): {rss[n] / 1024:.0f} MiB "
+            print(f"\npeak RSS of `vio-depth run` over {n} frames of {args.rss_data} (1242x375, ping-pong): "
+                  f"{rss[n] / 1024:.0f} MiB "
                   f"({time.perf_counter() - t:.0f} s, load average {load_average()})")
             shutil.rmtree(out.parent, ignore_errors=True)
         short, long = args.rss_frames
