@@ -53,6 +53,7 @@ NEAREST_BACKENDS = ("auto", "float32", "bfloat16")
 _U = 2.0**-8
 BF16_RELATIVE_ERROR = 3 * _U + 3 * _U**2 + 128 * 2.0**-24
 
+
 def _torch():
     """torch, imported where the bfloat16 backend is used (an optional heavy dependency)."""
     import torch
@@ -107,11 +108,15 @@ def resolve_backend(backend: str, n_x: int | None = None, n_y: int | None = None
 
 
 # ----------------------------------------------------------------------------- common
-def _two_best_of_block(screen, to_float, bounds, floor_of, x_block, y, keep, nn, sims, offset):
+def _round_up(n: int, quantum: int) -> int:
+    return -(-n // quantum) * quantum
+
+
+def _two_best_of_block(screen, lowest, to_float, bounds, floor_of, x_block, y, keep, nn, sims, offset):
     """The exact two best of each row of one block of a screen (see the module docstring).
 
     ``screen (n, >= Ny)``: values that order like the similarities (padding columns below
-    every similarity); ``to_float``: screen values -> float32 estimates; ``bounds(est) ->
+    every similarity); ``lowest``: a screen value below every similarity; ``to_float``: screen values -> float32 estimates; ``bounds(est) ->
     (lower, upper)`` of the true similarity; ``floor_of(v)``: the smallest screen value
     whose upper bound reaches ``v`` (rounded down). Writes rows ``offset + i`` of ``nn``
     and ``sims``; rows ``keep`` rejects are left as they are.
@@ -120,7 +125,7 @@ def _two_best_of_block(screen, to_float, bounds, floor_of, x_block, y, keep, nn,
     rows = np.arange(n)
     best = screen.argmax(axis=1)
     top = screen[rows, best]
-    screen[rows, best] = screen.dtype.type(np.finfo(np.float32).min if screen.dtype.kind == "f" else -1)
+    screen[rows, best] = lowest
     _, s1_high = bounds(to_float(top))
     s2_low, _ = bounds(to_float(screen.max(axis=1)))
     screen[rows, best] = top  # the best is a candidate again
@@ -166,7 +171,7 @@ def _nearest_two_float32(x: np.ndarray, y: np.ndarray, block_rows: int, keep, nn
 
     for start in range(0, len(x), block_rows):
         xb = x[start:start + block_rows]
-        _two_best_of_block(xb @ y.T, lambda v: v, bounds, floor_of, xb, y, keep, nn, sims, start)
+        _two_best_of_block(xb @ y.T, -np.inf, lambda v: v, bounds, floor_of, xb, y, keep, nn, sims, start)
 
 
 # ----------------------------------------------------------------------------- bfloat16 screen
@@ -209,9 +214,9 @@ def _padded_bfloat16(a: np.ndarray, rows: int):
 
 def _nearest_two_bfloat16(x: np.ndarray, y: np.ndarray, block_rows: int, keep, nn, sims):
     torch = _torch()
-    block = min(-(-block_rows // _ROW_QUANTUM), -(-len(x) // _ROW_QUANTUM)) * _ROW_QUANTUM
-    ny = -(-len(y) // _COL_QUANTUM) * _COL_QUANTUM
-    x16 = _padded_bfloat16(x, -(-len(x) // block) * block)
+    block = min(_round_up(block_rows, _ROW_QUANTUM), _round_up(len(x), _ROW_QUANTUM))
+    ny = _round_up(len(y), _COL_QUANTUM)
+    x16 = _padded_bfloat16(x, _round_up(len(x), block))
     y16 = _padded_bfloat16(y, ny)
     # the bounds widened by 2**-20 so that their own float32 rounding cannot narrow them
     lo, hi = (1.0 - 2.0**-20) / (1.0 + BF16_RELATIVE_ERROR), (1.0 + 2.0**-20) / (1.0 - BF16_RELATIVE_ERROR)
@@ -230,7 +235,8 @@ def _nearest_two_bfloat16(x: np.ndarray, y: np.ndarray, block_rows: int, keep, n
         # padding columns get -1 (below every similarity) and the padding rows are dropped
         bits = out.view(torch.int16).numpy()[:n]
         bits[:, len(y):] = -1
-        _two_best_of_block(bits, _bf16_bits_to_float, bounds, floor_of, x[start:start + n], y, keep, nn, sims, start)
+        _two_best_of_block(bits, -1, _bf16_bits_to_float, bounds, floor_of, x[start:start + n], y, keep, nn, sims,
+                           start)
 
 
 def nearest_two_rows(
