@@ -22,6 +22,13 @@ Per dataset, interleaved ``--repeats`` times (the best of each is reported):
   images of every pair, FLANN without ratio test, unchecked triangulation, scikit-learn
   ``RANSACRegressor``) on the same frames and disparity files; it writes no outputs.
 
+* **single-thread budget** (``--no-budget`` skips it): the run once more in a subprocess
+  with ``--no-overlap`` and one thread in every pool (OpenCV, BLAS, torch; torch imported
+  beforehand), so that each stage's time in ``metrics.json`` is the processor time it needs.
+  Bare SIFT at its fastest needs ``S = frames * cores / fps`` core-seconds, the run at
+  least ``S`` plus its other stages' ``O``: even perfectly overlapped, run / bare SIFT
+  ``<= S / (S + O)``, and 0.8 x needs ``O <= S / 4``. Printed next to the measured ratio.
+
 Datasets (``benchmarks/throughput_data.py``; rendered once and cached, ``--cache``): the
 street sample's drive rendered at the KITTI size 1242x375 (150 frames, SIMULATED
 disparity), KITTI-tiny (7 real frames ping-ponged to 61, SIMULATED LiDAR-densified
@@ -43,6 +50,7 @@ import argparse
 import contextlib
 import importlib.util
 import io
+import json
 import os
 import shutil
 import subprocess
@@ -143,7 +151,6 @@ def run_seconds(view: Path, out: Path, pairing: str, extra: list[str] = ()) -> t
     seconds = time.perf_counter() - t
     if rc != 0:
         raise SystemExit(f"vio-depth run failed with exit code {rc} on {view}")
-    import json
     timings = json.loads((out / "metrics.json").read_text())["timings"]
     return seconds, timings
 
@@ -187,6 +194,63 @@ def peak_rss_kib(view: Path, out: Path, pairing: str) -> int:
         kib = int(hwm.read_text())
     shutil.rmtree(out, ignore_errors=True)
     return kib
+
+
+_BUDGET_CHILD = """
+import sys
+import cv2
+cv2.setNumThreads(1)
+try:  # imported before the run, as in this benchmark's process: its import is not a stage's cost
+    import torch
+    torch.set_num_threads(1)
+except ImportError:
+    pass
+from vio_depth.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+#: environment of the single-thread budget run: every thread pool of one thread
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+               "OPENCV_FOR_THREADS_NUM": "1"}
+
+
+def stage_budget(view: Path, pairing: str) -> dict:
+    """Core-seconds of each stage of ``vio-depth run`` on ``view``: the run's own stage
+    timings with ``--no-overlap`` in a subprocess whose OpenCV, BLAS and torch pools have one
+    thread each, so that each stage's wall time is the processor time it needs. Returns the
+    metrics.json ``timings``."""
+    env = {**os.environ, **_ONE_THREAD, "PYTHONPATH": str(ROOT)}
+    with tempfile.TemporaryDirectory(prefix="bench_budget_") as tmp:
+        out = Path(tmp) / "out"
+        subprocess.run([sys.executable, "-c", _BUDGET_CHILD, *run_args(view, out, pairing), "--no-overlap"],
+                       cwd=ROOT, env=env, stdout=subprocess.DEVNULL, check=True)
+        return json.loads((out / "metrics.json").read_text())["timings"]
+
+
+def print_budget(res: dict, timings: dict) -> None:
+    """Print the single-thread stage budget and what it predicts for run / bare SIFT.
+
+    Bare SIFT at its fastest needs ``S = frames * cores / fps`` core-seconds; the run needs
+    at least that plus the processor time of its other stages ``O`` (single-thread budget),
+    so even perfectly overlapped on every core run / bare SIFT <= S / (S + O), and 0.8 x
+    requires O <= S / 4. Printed: the budget, O against S, that prediction next to the
+    measured ratio, and the same with matching as the only other stage."""
+    stages = {k: v["total_s"] for k, v in timings["stages"].items() if k != "points"}  # points = matching + triangulation
+    wall = timings["wall_s"]
+    rest = wall - sum(stages.values()) - timings["backfill_s"]
+    rows = [*stages.items(), ("backward pass", timings["backfill_s"]), ("rest of the loop", rest)]
+    print(f"  single-thread budget of the run (--no-overlap, one thread in every pool; core-seconds, "
+          f"share of {wall:.2f} s):")
+    print("    " + ", ".join(f"{k} {v:.2f} ({v / wall:.0%})" for k, v in rows))
+    cores, frames, fps = os.cpu_count() or 1, timings["frames"], res["fps"]
+    sift = frames * cores / fps["sift_best"]  # SIFT's core-seconds at the fastest bare rate
+    others = wall - stages.get("features", 0.0)
+    matching = stages.get("matching", 0.0)
+    print(f"    bare SIFT at its fastest: {sift:.2f} core-s; the run's other stages: {others:.2f} core-s "
+          f"({others / sift:.0%} of SIFT; 0.8 x allows at most 25 %)")
+    print(f"    perfectly overlapped on {cores} cores: run <= {sift / (sift + others):.2f} x bare SIFT (measured "
+          f"{fps['run'] / fps['sift_best']:.2f} x); with matching the only other stage <= "
+          f"{sift / (sift + matching):.2f} x")
 
 
 #: (label, cv2.imencode parameters) compared by --png
@@ -309,6 +373,8 @@ def main(argv=None) -> int:
                     help="frames of the peak-memory runs: the rendered street (float32 matching) or KITTI-tiny "
                          "(real, 4 000 features: the bfloat16 screen and torch); default street_kitti")
     ap.add_argument("--no-paper", action="store_true", help="skip the paper-reference baseline")
+    ap.add_argument("--no-budget", action="store_true",
+                    help="skip the single-thread stage budget (one --no-overlap run per dataset)")
     ap.add_argument("--png", action="store_true", help="also time the depth PNG encoding per zlib level/strategy")
     args = ap.parse_args(argv)
     print(f"bench_throughput: {os.cpu_count()} CPUs, OpenCV {cv2.__version__} with {cv2.getNumThreads()} threads, "
@@ -325,6 +391,8 @@ def main(argv=None) -> int:
             continue
         res = measure(name, view, args.repeats, paper)
         print_result(res)
+        if not args.no_budget:
+            print_budget(res, stage_budget(view, DATASETS[name][2]))
         if name in ("street_kitti", "kitti_tiny"):  # the 1242x375 datasets the done-when names
             checked = True
             fps = res["fps"]
