@@ -167,6 +167,12 @@ def paper_reference_seconds(module, view: Path, preset: str) -> tuple[float, dic
     return time.perf_counter() - t, counts
 
 
+def _run_child(script: str, args: list[str], env: dict[str, str] | None = None) -> None:
+    """``python -c script args`` in this checkout, its output discarded; fails loudly."""
+    env = {**os.environ, **(env or {}), "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", script, *args], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, check=True)
+
+
 #: run in the measured subprocess: the CLI, then its own peak RSS (VmHWM, KiB) into a file
 _RSS_CHILD = """
 import sys
@@ -186,11 +192,9 @@ def peak_rss_kib(view: Path, out: Path, pairing: str) -> int:
     child: Linux carries the forking parent's high-water mark over ``exec`` into it, so that
     measured this benchmark's own process."""
     shutil.rmtree(out, ignore_errors=True)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     with tempfile.TemporaryDirectory() as tmp:
         hwm = Path(tmp) / "vmhwm"
-        subprocess.run([sys.executable, "-c", _RSS_CHILD, str(hwm), *run_args(view, out, pairing)], cwd=ROOT,
-                       env=env, stdout=subprocess.DEVNULL, check=True)
+        _run_child(_RSS_CHILD, [str(hwm), *run_args(view, out, pairing)])
         kib = int(hwm.read_text())
     shutil.rmtree(out, ignore_errors=True)
     return kib
@@ -219,11 +223,9 @@ def stage_budget(view: Path, pairing: str) -> dict:
     timings with ``--no-overlap`` in a subprocess whose OpenCV, BLAS and torch pools have one
     thread each, so that each stage's wall time is the processor time it needs. Returns the
     metrics.json ``timings``."""
-    env = {**os.environ, **_ONE_THREAD, "PYTHONPATH": str(ROOT)}
     with tempfile.TemporaryDirectory(prefix="bench_budget_") as tmp:
         out = Path(tmp) / "out"
-        subprocess.run([sys.executable, "-c", _BUDGET_CHILD, *run_args(view, out, pairing), "--no-overlap"],
-                       cwd=ROOT, env=env, stdout=subprocess.DEVNULL, check=True)
+        _run_child(_BUDGET_CHILD, [*run_args(view, out, pairing), "--no-overlap"], _ONE_THREAD)
         return json.loads((out / "metrics.json").read_text())["timings"]
 
 
