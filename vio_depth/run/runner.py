@@ -31,11 +31,11 @@ from .outputs import RunOutputs
 from .overlap import (
     OrderedWriter,
     Prefetcher,
+    TorchThreads,
     blas_threads,
     opencv_threads,
     overlap_opencv_threads,
     prefetch_workers,
-    TorchThreads,
 )
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
