@@ -8,6 +8,7 @@ from .camera import Camera
 from .checks import check_array, check_image, check_transform
 from .environment import environ
 from .errors import (
+    CorruptImageError,
     InputError,
     MissingDependencyError,
     SequenceFormatError,
@@ -32,6 +33,7 @@ from .settings import Presets, override, require_positive, to_plain, toml_dumps,
 
 __all__ = [
     "Camera",
+    "CorruptImageError",
     "environ",
     "Presets",
     "InputError",

@@ -26,6 +26,14 @@ class SequenceFormatError(InputError):
         super().__init__(f"{where}: {message}")
 
 
+class CorruptImageError(SequenceFormatError):
+    """An image file whose compressed data are damaged (the decoder reported corrupt data).
+
+    Inside a run this is a per-frame status (``corrupt_image``: the frame is skipped), not
+    an error: one damaged frame of a long robot log must not end the run.
+    """
+
+
 class ShapeError(InputError, ValueError):
     """An array argument has the wrong shape, dtype or non-finite values."""
 

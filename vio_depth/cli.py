@@ -24,7 +24,7 @@ import sys
 from dataclasses import replace
 
 from matchers import uses_device
-from vio_core.errors import MissingDependencyError, SettingsError, VioDepthError
+from vio_core.errors import CorruptImageError, MissingDependencyError, SettingsError, VioDepthError
 from vio_core.settings import override
 
 from ._version import __version__
@@ -290,7 +290,10 @@ def _cmd_run(args) -> int:
     pipeline = Pipeline(settings, sequence=sequence)
     # Check the first frame's inputs before anything is written.
     first = sequence[0]
-    first.image()
+    try:
+        first.image()
+    except CorruptImageError:
+        pass  # damaged pixels are the frame's status (corrupt_image), not an error
     if settings.disparity.source == "files" and pipeline.disparity_source(first) is None:
         raise SettingsError(f"{pipeline.disparity_source.path_for(first)}: missing "
                             "(expected one <image stem>.npy per frame)")

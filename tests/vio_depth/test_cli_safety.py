@@ -109,16 +109,21 @@ def test_frames_txt_pointing_outside_the_sequence_is_refused(mini_street, tmp_pa
 
 
 # --------------------------------------------------------------------------- case 6: wrong results
-def test_corrupt_jpeg_mid_run_is_one_line_naming_the_file(mini_street, tmp_path, capsys):
+def test_corrupt_jpeg_mid_run_is_a_frame_status_naming_the_file(mini_street, tmp_path, capsys):
+    """Issue 23: damaged compressed data are the frame's status ``corrupt_image`` (the run goes
+    on; it was an error ending the run, issue 12); libjpeg's own line never reaches stderr."""
     seq = mini_street(6)
     bad = seq / "images" / "000003.jpg"
     b = bytearray(bad.read_bytes())
     b[len(b) // 2: len(b) // 2 + 400] = b"\x55" * 400
     bad.write_bytes(bytes(b))
     rc, _, err = _run(["run", seq, "--out", tmp_path / "o"], capsys)
-    _one_line(rc, err, "000003.jpg", "corrupt JPEG data")
-    assert "Corrupt JPEG data:" not in err.replace("corrupt JPEG data (libjpeg: Corrupt JPEG data:", "")
-    assert not (tmp_path / "o").exists()
+    assert rc == 0 and "Corrupt JPEG data" not in err, err
+    _, frames = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")
+    assert frames[3]["status"] == "corrupt_image" and frames[3]["alpha"] is None
+    assert "000003.jpg" in frames[3]["reason"] and "corrupt JPEG data" in frames[3]["reason"]
+    assert not (tmp_path / "o" / "depth" / "000003.png").exists()
+    assert [f["status"] for f in frames].count("corrupt_image") == 1
 
 
 @pytest.mark.parametrize("dist", [[5.0, -3.0, 0.0, 0.0], [-2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.6, 0.6],

@@ -58,7 +58,7 @@ from vio_core.geometry import invert_transform
 
 from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
-from .decode import decode_image_checked
+from .decode import decode_image
 from .images import read_image_bytes
 from .tables import QUATERNION_NORM_TOLERANCE, TextTable, interpolate_poses, read_text_table, stays_inside
 
@@ -293,9 +293,8 @@ def read_asl_image(path, camera: Camera | None = None) -> np.ndarray:
     """
     path = Path(path)
     data = read_image_bytes(path)
-    image, problem = decode_image_checked(data, cv2.IMREAD_UNCHANGED)  # corrupt JPEG data is an error
-    if image is None:
-        raise SequenceFormatError(path, problem)
+    expected = None if camera is None else (camera.width, camera.height)
+    image = decode_image(data, cv2.IMREAD_UNCHANGED, path, expected_size=expected)  # size checked first
     if image.dtype == np.uint16:
         image = np.round(image / 257.0).astype(np.uint8)
     elif image.dtype != np.uint8:

@@ -19,7 +19,7 @@ import numpy as np
 from vio_core.checks import check_array
 from vio_core.errors import InputError, SequenceFormatError
 
-from .decode import decode_image_checked
+from .decode import decode_image
 from .images import read_image_bytes
 
 #: KITTI / native-format depth scale: stored uint16 value per metre.
@@ -52,9 +52,7 @@ def read_depth_png(path, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
     if not path.is_file():
         raise SequenceFormatError(path, "depth PNG not found")
     data = read_image_bytes(path)
-    raw, problem = decode_image_checked(data, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise SequenceFormatError(path, f"depth PNG: {problem}")
+    raw = decode_image(data, cv2.IMREAD_UNCHANGED, path, what="depth PNG")
     if raw.ndim != 2:
         raise SequenceFormatError(path, f"depth PNG must be single-channel, got shape {raw.shape}")
     if raw.dtype != np.uint16:

@@ -11,7 +11,7 @@ import numpy as np
 from vio_core.camera import Camera
 from vio_core.errors import SequenceFormatError
 
-from .decode import decode_image_checked
+from .decode import decode_image
 
 
 def read_image_bytes(path) -> bytes:
@@ -36,15 +36,19 @@ def read_rgb_image(path, camera: Camera | None = None) -> np.ndarray:
     JPEG data (recognised by content, whatever the file name) are decoded with libjpeg's
     corruption warnings turned into errors (:mod:`vio_depth.io.decode`).
 
+    The size is read from the PNG / JPEG header and checked (limits, ``camera``'s size)
+    before decoding.
+
     Raises:
-        SequenceFormatError: missing/unreadable/undecodable file, a truncated or corrupt
-            JPEG, or a size that differs from ``camera``'s.
+        CorruptImageError: damaged compressed data (libjpeg complained): a run gives the
+            frame the status ``corrupt_image``.
+        SequenceFormatError: missing/unreadable/undecodable file, a truncated JPEG, a size
+            beyond the limits or other than ``camera``'s.
     """
     path = Path(path)
     data = read_image_bytes(path)
-    image, problem = decode_image_checked(data, cv2.IMREAD_COLOR_RGB)
-    if image is None:
-        raise SequenceFormatError(path, problem)
+    expected = None if camera is None else (camera.width, camera.height)
+    image = decode_image(data, cv2.IMREAD_COLOR_RGB, path, expected_size=expected)
     if camera is not None and image.shape[:2] != (camera.height, camera.width):
         raise SequenceFormatError(
             path, f"image is {image.shape[1]}x{image.shape[0]} but the camera is {camera.width}x{camera.height}")

@@ -12,7 +12,7 @@ import time
 from dataclasses import replace
 
 from matchers import Features, Matcher, create_matcher
-from vio_core.errors import InputError, SettingsError
+from vio_core.errors import CorruptImageError, InputError, SettingsError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
 from ..evaluation import PointSourceKind
@@ -104,17 +104,20 @@ class Pipeline:
         timings: dict[str, float] = {}
         clock = time.perf_counter
         matcher = self.matcher
-        if matcher is not None and features is None:
+        try:
+            if matcher is not None and features is None:
+                t = clock()
+                image = frame.image()  # read once: a model disparity source gets the same pixels
+                frame = replace(frame, load_image=lambda: image)
+                timings["image"] = clock() - t
+                t = clock()
+                features = matcher.extract(image)  # once per frame, kept if keyframe
+                timings["features"] = clock() - t
             t = clock()
-            image = frame.image()  # read once: a model disparity source gets the same pixels
-            frame = replace(frame, load_image=lambda: image)
-            timings["image"] = clock() - t
-            t = clock()
-            features = matcher.extract(image)  # once per frame, kept if keyframe
-            timings["features"] = clock() - t
-        t = clock()
-        disparity = self.disparity_source(frame)
-        timings["disparity"] = clock() - t
+            disparity = self.disparity_source(frame)
+            timings["disparity"] = clock() - t
+        except CorruptImageError as exc:  # damaged pixels: a status, the run goes on (docs/safety.md)
+            return PreparedFrame(frame, None, None, timings, corrupt_image=str(exc))
         return PreparedFrame(frame, features, disparity, timings)
 
     def process_prepared(self, prepared: PreparedFrame) -> FrameResult:
@@ -123,6 +126,10 @@ class Pipeline:
         ``process_prepared(prepare(frame))``."""
         frame, features, disparity = prepared.frame, prepared.features, prepared.disparity
         timings = dict(prepared.timings)
+        if prepared.corrupt_image:  # seen by no stage: pairing, tracking and the filter skip it
+            return FrameResult(frame.index, frame.stem, frame.timestamp, FrameStatus.CORRUPT_IMAGE,
+                               prepared.corrupt_image, self.settings.points, PointsOutcome(FrameStatus.CORRUPT_IMAGE, ""),
+                               timings=timings)
         clock = time.perf_counter
         frame_pose = None
         if self.tracker is not None:  # the odometry sees every frame, in order, before any relative pose

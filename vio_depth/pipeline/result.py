@@ -226,9 +226,12 @@ class PreparedFrame:
         features: the frame's features (SfM points), else None.
         disparity: (H, W) float affine-invariant disparity, or None (no map for this frame).
         timings: seconds of the stages done: ``image``, ``features``, ``disparity``.
+        corrupt_image: why the image's data are damaged ("" when they are not); such a
+            frame has neither features nor disparity and gets the status ``corrupt_image``.
     """
 
     frame: Frame
     features: Features | None
     disparity: np.ndarray | None = field(repr=False)
     timings: dict[str, float] = field(default_factory=dict)
+    corrupt_image: str = ""

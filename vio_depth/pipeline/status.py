@@ -29,6 +29,7 @@ class FrameStatus(str, enum.Enum):
     UNCERTAIN_FIT = "uncertain_fit"  # the fit's predicted error exceeds the stated bound
     NO_DISPARITY = "no_disparity"
     INVALID_DISPARITY = "invalid_disparity"  # a map that cannot give depth (vio_depth.disparity.validity)
+    CORRUPT_IMAGE = "corrupt_image"  # the image's compressed data are damaged: the frame is skipped
 
     @property
     def has_depth(self) -> bool:

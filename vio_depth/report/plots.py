@@ -32,6 +32,7 @@ STATUS_COLOURS = {
     "ill_conditioned": "#7b1fa2",
     "no_consensus": "#5d4037",
     "no_disparity": "#212121",
+    "corrupt_image": "#b71c1c",
 }
 OTHER_STATUS_COLOUR = "#1565c0"
 

@@ -312,7 +312,8 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     if first_ok is None or first_ok == 0:
         return {}
     lead = [i for i in range(first_ok)
-            if results[i].status not in (FrameStatus.NO_DISPARITY, FrameStatus.INVALID_DISPARITY)]
+            if results[i].status not in (FrameStatus.NO_DISPARITY, FrameStatus.INVALID_DISPARITY,
+                                         FrameStatus.CORRUPT_IMAGE)]
     if not lead:
         return {}
     backward = pipeline.fresh()
