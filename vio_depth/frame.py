@@ -19,6 +19,33 @@ from vio_core.errors import InputError, ShapeError
 #: keep the preintegration finite (issue 12: 1e30 values ended in NaN rotations)
 MAX_GYRO_RAD_S = 100.0
 MAX_ACCEL_M_S2 = 2000.0
+#: the magnitude of gravity a sequence may declare, m/s^2: Earth's surface gravity lies in
+#: 9.78-9.83 (equator to pole, sea level); a wrong vector (``[0, 0, 0]``, or g in other units)
+#: gave 4 frames at AbsRel 1.54 with exit 0 (issue 23)
+GRAVITY_RANGE_M_S2 = (9.7, 9.9)
+#: the calibration fields of :class:`ImuData` and their meaning (all must be finite and > 0)
+_NOISE_FIELDS = {"gyro_noise": "gyro_noise_density", "accel_noise": "accel_noise_density",
+                 "gyro_bias_walk": "gyro_bias_random_walk", "accel_bias_walk": "accel_bias_random_walk"}
+
+
+def imu_calibration_problem(gyro_noise: float, accel_noise: float, gyro_bias_walk: float, accel_bias_walk: float,
+                            gravity_w) -> str:
+    """Why an IMU calibration is refused ("" when it is not): a noise density or bias random
+    walk that is not finite and > 0, or a gravity vector whose magnitude lies outside
+    :data:`GRAVITY_RANGE_M_S2`. The message starts with the sequence-file key
+    (``gyro_noise_density must be ...``). The one check of every loader's IMU calibration."""
+    values = {"gyro_noise": gyro_noise, "accel_noise": accel_noise, "gyro_bias_walk": gyro_bias_walk,
+              "accel_bias_walk": accel_bias_walk}
+    for name, v in values.items():
+        if not (np.isfinite(v) and v > 0):
+            return f"{_NOISE_FIELDS[name]} must be finite and > 0, got {v!r}"
+    g = np.asarray(gravity_w, dtype=np.float64)
+    lo, hi = GRAVITY_RANGE_M_S2
+    norm = float(np.linalg.norm(g)) if g.shape == (3,) and np.all(np.isfinite(g)) else float("nan")
+    if not lo <= norm <= hi:
+        return (f"gravity_w {g.tolist()} has magnitude {norm:.4g} m/s^2; Earth's gravity is {lo}-{hi} m/s^2 "
+                "(a vector in m/s^2 pointing down in the world frame, e.g. [0, 0, -9.81])")
+    return ""
 
 
 def imu_sample_problem(gyro: np.ndarray, accel: np.ndarray) -> tuple[int, str] | None:

@@ -132,17 +132,23 @@ def umeyama_alignment(x, y, with_scale: bool = False) -> tuple[np.ndarray, np.nd
         with_scale: also estimate ``c`` (else ``c = 1``).
 
     Raises:
-        InputError: fewer than 3 points, or all source points coincide.
+        InputError: fewer than 3 points, all source points coincide, or positions so large
+            that their spread overflows (LAPACK's SVD may never return on inf / NaN: a pose
+            with ``tx = 1e300`` hung it, issue 23).
     """
     x = check_array("x", x, (None, 3), finite=True)
     y = check_array("y", y, (len(x), 3), finite=True)
     if len(x) < 3:
         raise InputError(f"alignment needs at least 3 associated poses, got {len(x)}")
-    mx, my = x.mean(0), y.mean(0)
-    sigma_x = float(np.mean(np.sum((x - mx) ** 2, axis=1)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        mx, my = x.mean(0), y.mean(0)
+        sigma_x = float(np.mean(np.sum((x - mx) ** 2, axis=1)))
+        cov = (y - my).T @ (x - mx) / len(x)
+    if not (np.isfinite(sigma_x) and np.all(np.isfinite(cov)) and np.all(np.isfinite(my))):
+        raise InputError("alignment impossible: the positions are so large that their spread overflows "
+                         f"(largest |coordinate| {max(np.abs(x).max(), np.abs(y).max()):.3g} m)")
     if sigma_x <= 0:
         raise InputError("alignment is degenerate: all estimated positions coincide")
-    cov = (y - my).T @ (x - mx) / len(x)
     u, d, vt = np.linalg.svd(cov)
     s = np.eye(3)
     if np.linalg.det(u) * np.linalg.det(vt) < 0:

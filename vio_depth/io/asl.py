@@ -347,6 +347,7 @@ def read_asl_ground_truth(folder, T_B_I) -> AslGroundTruth:
         T_B_S = parse_T_BS(data, folder / "sensor.yaml", lines, required=False)
     t_ns, v, table = read_asl_table(csv, (8, 17), "ground truth",
                                     "timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z[, v, b_w, b_a]")
+    table.check_positions(v[:, :3])
     q_wxyz = v[:, 3:7]
     norms = np.linalg.norm(q_wxyz, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)

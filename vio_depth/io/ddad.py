@@ -54,11 +54,12 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import InputError, SequenceFormatError, SettingsError, UnknownNameError
 from vio_core.geometry import invert_transform, make_transform
+from vio_core.limits import read_json_file
 
 from ..frame import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .images import read_rgb_image
-from .tables import QUATERNION_NORM_TOLERANCE
+from .tables import MAX_POSITION_M, QUATERNION_NORM_TOLERANCE
 
 #: how the LiDAR points are moved into the camera (see the module docstring)
 PROJECTIONS = ("extrinsics", "poses")
@@ -100,13 +101,13 @@ def read_json(path) -> object:
     """Parse a JSON file; :class:`SequenceFormatError` with the line of a syntax error."""
     path = Path(path)
     try:
-        text = path.read_text()
+        return read_json_file(path, what="a JSON file")
     except OSError as exc:
         raise SequenceFormatError(path, f"cannot read: {exc.strerror}") from None
-    try:
-        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise SequenceFormatError(path, f"invalid JSON: {exc.msg} (column {exc.colno})", line=exc.lineno) from None
+    except ValueError as exc:  # too large, nested too deeply, not UTF-8
+        raise SequenceFormatError(path, f"cannot read JSON: {exc}") from None
 
 
 def _get(obj, name: str, default=None):
@@ -157,6 +158,8 @@ def parse_pose(obj, path, where: str) -> np.ndarray | None:
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise SequenceFormatError(path, f"{where}: rotation quaternion norm {norm:.4f} is not 1")
     xyz = [_number(t, k, path, f"{where}.translation") for k in ("x", "y", "z")]
+    if not all(abs(v) <= MAX_POSITION_M for v in xyz):
+        raise SequenceFormatError(path, f"{where}: translation {xyz} m is beyond the plausible {MAX_POSITION_M:.0e} m")
     return make_transform(Rotation.from_quat(q / norm).as_matrix(), xyz)
 
 

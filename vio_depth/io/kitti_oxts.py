@@ -27,6 +27,10 @@ OXTS_FIELDS = (
 )
 _F = {name: i for i, name in enumerate(OXTS_FIELDS)}
 EARTH_RADIUS_M = 6378137.0
+#: OXTS positions beyond these are refused (the Mercator projection diverges at the poles;
+#: no vehicle drives 100 km above or below sea level)
+MAX_LATITUDE_DEG = 85.0
+MAX_ALTITUDE_M = 1e5
 
 CALIB_CAM_TO_CAM = "calib_cam_to_cam.txt"
 CALIB_IMU_TO_VELO = "calib_imu_to_velo.txt"
@@ -90,7 +94,12 @@ def read_oxts_packet(path) -> np.ndarray:
         raise table.error(None, f"expected one OXTS line, found {len(table)}")
     if len(table.rows[0]) != len(OXTS_FIELDS):
         raise table.error(0, f"truncated OXTS packet: expected {len(OXTS_FIELDS)} values, got {len(table.rows[0])}")
-    return table.floats(what="OXTS value")[0]
+    values = table.floats(what="OXTS value")[0]
+    lat, lon, alt = values[_F["lat"]], values[_F["lon"]], values[_F["alt"]]
+    if not (abs(lat) <= MAX_LATITUDE_DEG and abs(lon) <= 180.0 and abs(alt) <= MAX_ALTITUDE_M):
+        raise table.error(0, f"lat {lat:.6g} deg, lon {lon:.6g} deg, alt {alt:.6g} m is not a place on Earth "
+                             f"(|lat| <= {MAX_LATITUDE_DEG:g}, |lon| <= 180, |alt| <= {MAX_ALTITUDE_M:g} m)")
+    return values
 
 
 def read_velodyne_bin(path) -> np.ndarray:

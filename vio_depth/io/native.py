@@ -28,9 +28,10 @@ import numpy as np
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
 from vio_core.errors import InputError, SequenceFormatError, SettingsError
+from vio_core.limits import LimitError, read_json_file
 
 from ..disparity import DisparityKind, DisparitySimulation, DisparitySpec
-from ..frame import Frame, ImuData, imu_sample_problem
+from ..frame import Frame, ImuData, imu_calibration_problem, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
 from .depth_png import DEPTH_PNG_SCALE, read_depth_png
 from .images import read_rgb_image
@@ -195,12 +196,15 @@ def _read_json(path: Path) -> dict:
     if not path.is_file():
         raise SequenceFormatError(path, "sequence.json not found")
     try:
-        with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
+        data = read_json_file(path, what="sequence.json")
+    except OSError as exc:
+        raise SequenceFormatError(path, f"cannot read: {exc.strerror or exc}") from None
     except json.JSONDecodeError as exc:
         raise SequenceFormatError(path, f"invalid JSON: {exc.msg} (column {exc.colno})", exc.lineno) from None
     except UnicodeDecodeError as exc:
         raise SequenceFormatError(path, f"not UTF-8 text: {exc}") from None
+    except LimitError as exc:  # larger than vio_core.limits allows, or nested too deeply
+        raise SequenceFormatError(path, str(exc)) from None
     if not isinstance(data, dict):
         raise SequenceFormatError(path, "top level must be a JSON object")
     return data
@@ -315,6 +319,9 @@ class NativeSequence(Sequence):
         if not isinstance(gravity, list) or len(gravity) != 3:
             raise SequenceFormatError(json_path, f"imu.gravity_w must be a list of 3 numbers, got {gravity!r}")
         gravity = tuple(_number(g, json_path, "imu.gravity_w[]") for g in gravity)
+        problem = imu_calibration_problem(gravity_w=gravity, **noise)
+        if problem:
+            raise SequenceFormatError(json_path, f"imu.{problem}")
         t, gyro, accel = read_imu_txt(imu_path)
         return ImuData(t, gyro, accel, T_c_i, gravity_w=gravity, **noise)
 

@@ -48,7 +48,7 @@ from .base import Sequence, SequenceFormat, register_format
 from .depth_png import read_depth_png
 from .images import read_rgb_image
 from .rasterize import register_depth
-from .tables import read_matrix
+from .tables import MAX_POSITION_M, read_matrix
 
 #: nominal frame rate used to make timestamps, Hz
 SEVENSCENES_FPS = 30.0
@@ -107,6 +107,8 @@ def _load_registered_depth(path, depth_camera: Camera, colour_camera: Camera, T_
 
 def _read_pose(path: Path) -> np.ndarray:
     T = read_matrix(path, (4, 4), "4x4 camera-to-world pose")
+    if not np.all(np.abs(T[:3, 3]) <= MAX_POSITION_M):
+        raise SequenceFormatError(path, f"position {T[:3, 3].tolist()} m is beyond the plausible {MAX_POSITION_M:.0e} m")
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
         raise SequenceFormatError(path, f"last row must be 0 0 0 1, got {T[3].tolist()}")
     R = T[:3, :3]

@@ -22,10 +22,16 @@ from scipy.spatial.transform import Rotation
 from vio_core.checks import check_array
 from vio_core.errors import SequenceFormatError
 from vio_core.geometry import transform_to_tum
+from vio_core.limits import MAX_TEXT_BYTES, read_limited, too_large
 
 #: |norm - 1| of a quaternion in a trajectory file must be below this (4-decimal TUM
 #: files are within 2e-4; anything larger is a wrong column order or a corrupt line)
 QUATERNION_NORM_TOLERANCE = 1e-3
+#: a pose whose position coordinate exceeds this (metres) is refused as corrupt: Earth-centred
+#: (ECEF) and UTM coordinates stay below 1e7 m, so 1e8 m (100 000 km) admits every real
+#: trajectory; larger values overflow the squares of the trajectory alignment (issue 23: a
+#: ``tx = 1e300`` row hung the SVD of the Umeyama alignment)
+MAX_POSITION_M = 1e8
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,15 @@ class TextTable:
         """The string field ``index`` of every row."""
         return [fields[index] for fields in self.rows]
 
+    def check_positions(self, xyz: np.ndarray, what: str = "position") -> None:
+        """Raise naming the first line whose ``xyz`` ((N, 3) metres, one row per table row)
+        has a coordinate beyond :data:`MAX_POSITION_M`."""
+        bad = np.flatnonzero(~np.all(np.abs(np.asarray(xyz, dtype=np.float64)) <= MAX_POSITION_M, axis=1))
+        if len(bad):
+            i = int(bad[0])
+            raise self.error(i, f"{what} ({', '.join(f'{v:.3g}' for v in xyz[i])}) m is beyond the plausible "
+                                f"{MAX_POSITION_M:.0e} m (a corrupt line?)")
+
     def check_increasing(self, t: np.ndarray, *, strict: bool = True) -> None:
         """Raise naming the first line whose time ``t[i]`` does not increase (strictly)."""
         d = np.diff(np.asarray(t, dtype=np.float64))
@@ -95,19 +110,24 @@ def read_text_table(path, what: str, *, layout: str | None = None, columns: int 
         :class:`TextTable` of the lines that are neither blank nor start with ``#``.
 
     Raises:
-        SequenceFormatError: missing or unreadable file, bytes that are not UTF-8, a line
-            with the wrong number of fields, or no rows (names the file and line).
+        SequenceFormatError: missing or unreadable file, a file larger than
+            :data:`vio_core.limits.MAX_TEXT_BYTES` (checked before reading it), bytes that are
+            not UTF-8, a line with the wrong number of fields, or no rows (names the file and line).
     """
     path = Path(path)
     if not path.is_file():
         raise SequenceFormatError(path, f"{what} file not found")
     try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = path.read_bytes()[: exc.start].count(b"\n") + 1
-        raise SequenceFormatError(path, "not UTF-8 text", line) from None
+        data, size = read_limited(path, MAX_TEXT_BYTES)
     except OSError as exc:
         raise SequenceFormatError(path, f"cannot read: {exc.strerror or exc}") from None
+    if data is None:
+        raise SequenceFormatError(path, too_large(size, MAX_TEXT_BYTES, f"a {what} file"))
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise SequenceFormatError(path, "not UTF-8 text", line) from None
     layout = what if layout is None else layout
     rows, lines = [], []
     for lineno, raw in enumerate(text.splitlines(), start=1):
@@ -158,12 +178,14 @@ def read_tum_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
         T: (N, 4, 4) transforms (as the file defines them, e.g. camera-to-world), metres.
 
     Raises:
-        SequenceFormatError: wrong column count, non-numeric values, a quaternion whose norm
-            differs from 1 by more than :data:`QUATERNION_NORM_TOLERANCE`, or timestamps
-            not strictly increasing (names the file and line).
+        SequenceFormatError: wrong column count, non-numeric values, a position beyond
+            :data:`MAX_POSITION_M`, a quaternion whose norm differs from 1 by more than
+            :data:`QUATERNION_NORM_TOLERANCE`, or timestamps not strictly increasing (names
+            the file and line).
     """
     table = read_text_table(path, "trajectory", layout="t tx ty tz qx qy qz qw", columns=8)
     rows = table.floats(what="value")
+    table.check_positions(rows[:, 1:4])
     norms = np.linalg.norm(rows[:, 4:8], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
     if len(bad):
