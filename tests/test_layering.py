@@ -35,6 +35,8 @@ RANKS = {
     "vio_depth.simulate": 9,
     "vio_depth.experiments": 9,  # vio-depth eval: runs (8) and baselines (7) over many sequences
     "vio_depth.cli": 9,
+    "vio_depth.cli_robot": 9,  # the command line of bags, calibration, ROS outputs and Rerun
+    "vio_depth.viz": 8,  # live views (Rerun), beside the runs
     "vio_depth": 10,  # the package __init__: the public API
 }
 
@@ -165,7 +167,7 @@ def test_no_module_is_over_500_lines():
 
 #: optional heavy dependencies: the only imports allowed inside a function (imported where selected)
 LAZY_IMPORTS = {"torch", "torchvision", "kornia", "transformers", "onnxruntime", "onnx", "gtsam", "matplotlib", "ray",
-                "sklearn", "skimage", "plyfile", "evo", "safetensors", "PIL", "huggingface_hub"}
+                "rerun", "sklearn", "skimage", "plyfile", "evo", "safetensors", "PIL", "huggingface_hub"}
 
 
 def test_imports_inside_functions_are_only_optional_heavy_dependencies():

@@ -28,11 +28,13 @@ from vio_core.errors import CorruptImageError, MissingDependencyError, SettingsE
 from vio_core.settings import override
 
 from ._version import __version__
+from .cli_robot import add_input_flags, add_inspect_parser, add_output_flags, cmd_inspect, input_paths, open_input, \
+    sink_factories
 from .disparity import DISPARITY_CHOICES, disparity_presets
 from .evaluation import POINT_SPEC_FORMS, parse_points_spec
 from .experiments import add_eval_parser, format_results, request_from_args, run_evaluation
 from .export import parse_depth_range, parse_ply_spec
-from .io import available_formats, open_sequence
+from .io import available_formats
 from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
 from .report import build_report
 from .run import (
@@ -132,7 +134,7 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="process a sequence and write metric depth maps")
-    r.add_argument("sequence", help="sequence folder (native, KITTI raw drive, 7-Scenes or TUM RGB-D)")
+    r.add_argument("sequence", help="sequence folder (native, KITTI raw, 7-Scenes, TUM RGB-D, ASL, DDAD) or ROS bag")
     r.add_argument("--out", required=True, help="output folder (created if missing; never inside an input)")
     mode = r.add_mutually_exclusive_group()
     mode.add_argument("--overwrite", action="store_true",
@@ -142,6 +144,8 @@ def _build_parser() -> argparse.ArgumentParser:
                            "and version; the result equals an uninterrupted run)")
     r.add_argument("--format", default=None, help="sequence format (default: auto-detect)")
     _add_settings_flags(r)
+    add_input_flags(r)
+    add_output_flags(r)
     r.add_argument("--no-overlap", action="store_true",
                    help="run every stage in one thread, one after the other (same outputs, slower; default: the "
                         "next frames are prepared and the outputs written in worker threads)")
@@ -158,6 +162,7 @@ def _build_parser() -> argparse.ArgumentParser:
     rep.add_argument("out_dir", help="the --out folder of a vio-depth run")
     rep.add_argument("--to", default=None, metavar="DIR", help="report folder (default: OUT_DIR/report)")
     add_eval_parser(sub)
+    add_inspect_parser(sub)
     return p
 
 
@@ -277,7 +282,7 @@ def _cmd_config(args) -> int:
 
 def _run_inputs(args, settings: PipelineSettings) -> list:
     """The paths a run reads besides the sequence folder (``--out`` may not touch them)."""
-    return [p for p in (settings.disparity.path, args.config) if p]
+    return [p for p in (settings.disparity.path, args.config) if p] + input_paths(args)
 
 
 def _cmd_run(args) -> int:
@@ -286,7 +291,8 @@ def _cmd_run(args) -> int:
     mode = OutputMode.RESUME if args.resume else OutputMode.OVERWRITE if args.overwrite else OutputMode.NEW
     inputs = _run_inputs(args, settings)
     OutputFolder(args.out, mode, inputs=[args.sequence, *inputs]).check_mode()
-    sequence = open_sequence(args.sequence, format=args.format)
+    sinks = sink_factories(args)
+    sequence = open_input(args)
     pipeline = Pipeline(settings, sequence=sequence)
     # Check the first frame's inputs before anything is written.
     first = sequence[0]
@@ -299,7 +305,7 @@ def _cmd_run(args) -> int:
                             "(expected one <image stem>.npy per frame)")
     try:
         summary = run_sequence(sequence, pipeline, args.out, run, progress=args.progress, command=args.command_line,
-                               mode=mode, inputs=inputs, overlap=not args.no_overlap)
+                               mode=mode, inputs=inputs, overlap=not args.no_overlap, sinks=sinks)
     except (VioDepthError, OSError, KeyboardInterrupt) as exc:
         staging = staging_path(args.out)
         if (staging / JOURNAL_NAME).is_file() and not isinstance(exc, OutputFolderError):
@@ -370,6 +376,8 @@ def main(argv=None) -> int:
             return _cmd_report(args)
         if args.command == "eval":
             return _cmd_eval(args)
+        if args.command == "inspect":
+            return cmd_inspect(args)
         return _cmd_run(args)
     except VioDepthError as exc:
         print(f"vio-depth: error: {_one_line(exc)}{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)

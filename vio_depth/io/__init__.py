@@ -16,27 +16,38 @@ module              job
 ``sevenscenes``     Microsoft 7-Scenes
 ``tum``             TUM RGB-D
 ``asl``             EuRoC / TUM-VI (ASL layout, ``mav0/``); ``asl_writer`` writes it
+``bag``             ROS 1 / ROS 2 bags and MCAP files (``rosbags``); ``bag_topics`` the topic choice
+                    and ``inspect``, ``bag_messages`` the message conversions
+``kalibr``          Kalibr ``camchain.yaml`` / ``imu.yaml`` (``--calib``, ``--imu-calib``) for any input
 ==================  ============================================================================
 
 Importing this package registers every built-in format.
 """
 
-from . import asl, ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
+from . import asl, bag, ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
 from .asl import AslSequence
 from .asl_writer import AslWriter
+from .bag import BagSequence, BagSettings, open_bag
 from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format
+from .kalibr import Calibration, apply_calibration, read_calibration
 from .native import NativeSequence
 from .native_writer import NativeSequenceWriter, write_native_sequence
 
 __all__ = [
     "AslSequence",
     "AslWriter",
+    "BagSequence",
+    "BagSettings",
+    "Calibration",
     "NativeSequence",
     "NativeSequenceWriter",
     "Sequence",
     "SequenceFormat",
+    "apply_calibration",
     "available_formats",
+    "open_bag",
     "open_sequence",
+    "read_calibration",
     "register_format",
     "write_native_sequence",
 ]

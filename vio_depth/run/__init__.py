@@ -12,6 +12,7 @@ module             job
 ``summary``        :class:`RunSummary`, the printed table
 ``folder``         :class:`OutputFolder`: path checks, the staging folder, the atomic swap into place
 ``resume``         continuing an interrupted run: header and replay checks
+``sinks``          :class:`FrameSink`: further consumers of every frame (ROS / MCAP output, Rerun view)
 ``verdict``        :func:`judge_run`: "nothing came out", the exit codes
 ``trajectory``     the camera poses the run used (``trajectory.tum``), their ATE / RPE
 =================  ============================================================================
@@ -24,6 +25,7 @@ from .overlap import OrderedWriter, Prefetcher
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
 from .runner import backfill_leading_frames, run_header, run_sequence
+from .sinks import FrameSink, SinkFactory
 from .summary import RunSummary, format_table, summary_of_folder
 from .timing import timing_summary
 from .trajectory import TrajectoryReport, run_trajectory, used_poses
@@ -54,10 +56,12 @@ __all__ = [
     "ResumeError",
     "RunVerdict",
     "FrameRecord",
+    "FrameSink",
     "RunHeader",
     "RunOutputs",
     "RunSettings",
     "RunSummary",
+    "SinkFactory",
     "TrajectoryReport",
     "backfill_leading_frames",
     "config_from_dict",

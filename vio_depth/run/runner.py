@@ -39,6 +39,7 @@ from .overlap import (
 )
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
+from .sinks import FrameSink, SinkFactory
 from .summary import RunSummary, summary_of_folder
 from .timing import timing_summary
 from .trajectory import run_trajectory
@@ -62,7 +63,8 @@ def run_header(sequence: Sequence, pipeline: Pipeline, settings: RunSettings, co
 
 def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunSettings = RunSettings(), *,
                  progress: bool | None = None, command: list[str] | None = None,
-                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = (), overlap: bool = True) -> RunSummary:
+                 mode: OutputMode | str = OutputMode.NEW, inputs: Iterable = (), overlap: bool = True,
+                 sinks: Iterable[SinkFactory] = ()) -> RunSummary:
     """Process ``sequence`` (or its first ``settings.max_frames`` frames) and write outputs to ``out_dir``.
 
     Everything is written into a staging folder next to ``out_dir`` and moved into place
@@ -86,6 +88,8 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
             (:func:`~vio_depth.run.overlap.overlap_opencv_threads`);
             False runs everything in this thread, one stage after the other. Both give
             byte-identical outputs.
+        sinks: factories of further consumers of every frame (:mod:`vio_depth.run.sinks`:
+            the ROS / MCAP output, a Rerun view), each called with the staging folder.
 
     Returns:
         :class:`RunSummary` (also written to ``metrics.json`` with ground truth);
@@ -114,15 +118,19 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         summary = summary_of_folder(folder.out)
         summary.resumed_frames = -1
         return summary
+    frame_sinks: list[FrameSink] = []
     try:
+        frame_sinks = [make(folder.staging) for make in sinks]
         workers = _prefetch_workers(pipeline) if overlap else 1
         with opencv_threads(overlap_opencv_threads(workers) if overlap else None), \
                 blas_threads(1 if overlap else None), \
                 TorchThreads(1 if overlap and workers > 1 else None) as torch_threads:
             summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers,
-                           torch_threads)
+                           torch_threads, frame_sinks)
         folder.commit()
     except BaseException:
+        for sink in frame_sinks:
+            sink.abort()
         folder.release()
         raise
     if summary.report:
@@ -152,7 +160,7 @@ def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features 
 
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
          plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1,
-         torch_threads: TorchThreads | None = None) -> RunSummary:
+         torch_threads: TorchThreads | None = None, sinks: list[FrameSink] = ()) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``; ``torch_threads`` is polled after each frame
     (a matcher may load torch during the run)."""
@@ -170,6 +178,8 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             outputs.write_frame(res)
         if exporter is not None:
             exporter.add_frame(frame, res, write=write)
+        for sink in sinks:  # replayed frames too: a sink's file is written anew by a resumed run
+            sink.add_frame(frame, res)
         res.timings["write"] = time.perf_counter() - t
         evaluation = None
         if evaluate:
@@ -271,6 +281,8 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     world = None if tracker is None else {i: tracker.world_pose(sequence[i]) for i in range(n)}
     trajectory = run_trajectory(sequence, results, settings.rpe_delta_m, world)
     summary.trajectory = trajectory.to_json()
+    for sink in sinks:
+        sink.finish(sequence, trajectory.trajectory)
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
         summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
     summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()

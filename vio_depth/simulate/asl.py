@@ -13,11 +13,13 @@ Timestamps are shifted by ``time_offset_s`` so that they look like a real clock
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from vio_core.camera import Camera
+from vio_core.checks import check_transform
 from vio_core.errors import InputError
 from vio_core.geometry import invert_transform
 
@@ -33,7 +35,7 @@ ASL_TIME_OFFSET_S = 1_600_000_000
 
 def generate_asl_sample(out_dir, *, sample: str = "room", n_frames: int = 10, scale: float = 1.0,
                         gt_columns: int = 17, gt_start_s: float | None = None,
-                        time_offset_s: int = ASL_TIME_OFFSET_S, grey: bool = True) -> Path:
+                        time_offset_s: int = ASL_TIME_OFFSET_S, grey: bool = True, T_i_c=None) -> Path:
     """Render ``n_frames`` frames of the bundled sample ``sample`` into an ASL folder.
 
     Args:
@@ -46,12 +48,18 @@ def generate_asl_sample(out_dir, *, sample: str = "room", n_frames: int = 10, sc
             (None: it covers the whole IMU span), so that early frames have no pose.
         time_offset_s: whole seconds added to every timestamp (exactly, in nanoseconds).
         grey: grey PNGs (as EuRoC) or colour.
+        T_i_c: (4, 4) camera-to-IMU mounting instead of the sample's (None: the sample's).
+            The IMU, ground truth and images follow it; an axis-permutation rotation with
+            dyadic translations keeps every transform of the loaders exact (used where two
+            loaders must give bit-identical poses: tests/vio_depth/io/test_bag.py).
 
     Returns:
         ``out_dir``. The disparity of such a sequence is not stored; the images are
         SIMULATED renderings.
     """
     spec = sample_spec(sample)
+    if T_i_c is not None:
+        spec = replace(spec, T_i_c=check_transform("T_i_c", T_i_c))
     if n_frames < 1:
         raise InputError(f"n_frames must be positive, got {n_frames}")
     if gt_columns not in (8, 17):
