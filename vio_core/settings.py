@@ -24,6 +24,7 @@ import typing
 from typing import Any, Callable, Generic, Iterator, Mapping, TypeVar
 
 from .errors import SettingsError, lookup
+from .limits import MAX_NESTING, nesting_depth, value_depth
 
 try:
     import tomllib  # Python >= 3.11
@@ -291,8 +292,22 @@ def toml_dumps(data: Mapping[str, Any]) -> str:
 
 
 def toml_loads(text: str, source: str = "<string>") -> dict[str, Any]:
-    """Parse TOML text (``tomllib``; ``tomli`` on Python 3.10), errors as :class:`SettingsError`."""
+    """Parse TOML text (``tomllib``; ``tomli`` on Python 3.10), errors as :class:`SettingsError`.
+
+    The nesting depth is checked before parsing (``tomllib`` recurses once per level: a file
+    nested 50 000 arrays deep ended in a ``RecursionError`` with 3 000 lines of traceback) and
+    after it (dotted keys and table headers nest without brackets); at most
+    :data:`vio_core.limits.MAX_NESTING` levels.
+    """
+    depth = nesting_depth(text, "toml")
+    if depth > MAX_NESTING:
+        raise SettingsError(f"{source}: nested {depth} levels deep, more than the {MAX_NESTING} vio-depth reads")
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SettingsError(f"{source}: invalid TOML: {exc}") from None
+    except RecursionError:  # pragma: no cover - the depth check comes first
+        raise SettingsError(f"{source}: nested more than the {MAX_NESTING} levels vio-depth reads") from None
+    if value_depth(data) > MAX_NESTING:
+        raise SettingsError(f"{source}: nested more than the {MAX_NESTING} levels vio-depth reads")
+    return data

@@ -8,12 +8,12 @@ same keys into ``metrics.json``. Unreadable lines are skipped with a note, never
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from vio_core.errors import InputError
+from vio_core.limits import MAX_TEXT_BYTES, parse_json, read_json_file, read_limited, too_large
 
 #: run-header keys and the names they may carry (the first one found wins)
 HEADER_KEYS = {
@@ -104,13 +104,19 @@ def load_run(out_dir) -> RunData:
     if not path.is_file():
         raise InputError(f"{path}: missing; is {out_dir} the --out folder of a finished vio-depth run?")
     run = RunData(out_dir=out_dir)
-    bad = []
-    for n, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
+    try:
+        data, size = read_limited(path, MAX_TEXT_BYTES)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if data is None:
+        raise InputError(f"{path}: {too_large(size, MAX_TEXT_BYTES, 'a frames.jsonl')}")
+    bad, wrong = [], []
+    for n, line in enumerate(data.decode("utf-8", errors="replace").splitlines(), start=1):
         if not line.strip():
             continue
         try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
+            rec = parse_json(line)
+        except ValueError:
             bad.append(n)
             continue
         if not isinstance(rec, dict):
@@ -119,17 +125,25 @@ def load_run(out_dir) -> RunData:
             if run.header is None:
                 run.header = rec
         elif "frame" in rec:
-            run.frames.append(rec)
+            problem = record_problem(rec)
+            if problem:
+                wrong.append((n, problem))
+            else:
+                run.frames.append(rec)
         else:
             bad.append(n)
     if bad:
         run.notes.append(f"frames.jsonl: skipped {len(bad)} unreadable line(s) (first: line {bad[0]})")
+    if wrong:
+        run.notes.append(f"frames.jsonl: skipped {len(wrong)} frame record(s) with fields of the wrong type "
+                         f"(first: line {wrong[0][0]}: {wrong[0][1]})")
     if not run.frames:
-        raise InputError(f"{path}: holds no frame records")
-    run.frames.sort(key=lambda r: r["frame"] if isinstance(r.get("frame"), int) else 0)
-    run.metrics = _read_json(out_dir / "metrics.json", run.notes)
+        why = f" (line {wrong[0][0]}: {wrong[0][1]})" if wrong else ""
+        raise InputError(f"{path}: holds no usable frame records{why}")
+    run.frames.sort(key=lambda r: r["frame"])
+    run.metrics = _clean_metrics(_read_json(out_dir / "metrics.json", run.notes), run.notes)
     for name in ("thumbs/legend.json", "preview/legend.json"):
-        run.legend = _read_json(out_dir / name, run.notes)
+        run.legend = _clean_legend(_read_json(out_dir / name, run.notes), name, run.notes)
         if run.legend is not None:
             break
     for folder, pattern, words in OUTPUT_FOLDERS:
@@ -146,8 +160,65 @@ def _read_json(path: Path, notes: list) -> dict | None:
     if not path.is_file():
         return None
     try:
-        value = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError, OSError):
+        value = read_json_file(path)
+    except (ValueError, OSError):  # not JSON / UTF-8, too large, nested too deeply, unreadable
         notes.append(f"{path.name}: unreadable, ignored")
         return None
     return value if isinstance(value, dict) else None
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def record_problem(rec: dict) -> str:
+    """Why a frame record cannot be reported ("" when it can): the fields the report uses
+    must have their schema types (docs/frames_schema.md). A ``stem`` names files of the run
+    folder, so it must be a plain file name (no folder, never ``..``)."""
+    frame = rec.get("frame")
+    if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:
+        return f"'frame' must be a non-negative integer, got {frame!r:.40}"
+    for key in ("status", "reason", "stem"):
+        if key in rec and not isinstance(rec[key], str):
+            return f"{key!r} must be a string, got {rec[key]!r:.40}"
+    stem = rec.get("stem")
+    if stem is not None and (stem in ("", ".", "..") or any(c in stem for c in "/\\\0")):
+        return f"'stem' must be a file name, got {stem!r:.40}"
+    if "backfilled" in rec and not isinstance(rec["backfilled"], bool):
+        return f"'backfilled' must be true or false, got {rec['backfilled']!r:.40}"
+    return ""
+
+
+def _clean_metrics(metrics: dict | None, notes: list) -> dict | None:
+    """``metrics.json`` with the parts the report reads checked: parts of the wrong type are
+    dropped with a note (never a traceback on a damaged file)."""
+    if metrics is None:
+        return None
+    dropped = []
+    table = metrics.get("metrics")
+    if table is not None and not (isinstance(table, dict) and all(isinstance(v, dict) for v in table.values())):
+        dropped.append("metrics")
+    pa = metrics.get("point_accuracy")
+    if pa is not None and not (isinstance(pa, dict) and all(_number(pa.get(k)) for k in (
+            "frames", "rel_err_median_of_frames", "rel_err_p90_median_of_frames", "points_per_frame_median"))):
+        dropped.append("point_accuracy")
+    n = metrics.get("frames_in_sequence")
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int)):
+        dropped.append("frames_in_sequence")
+    if not isinstance(metrics.get("disparity_kind", ""), str):
+        dropped.append("disparity_kind")
+    if dropped:
+        notes.append(f"metrics.json: ignored {', '.join(dropped)} (wrong type)")
+    return {k: v for k, v in metrics.items() if k not in dropped}
+
+
+def _clean_legend(legend: dict | None, name: str, notes: list) -> dict | None:
+    """A preview legend whose ``depth_range_m`` is two finite positive numbers (else None)."""
+    if legend is None:
+        return None
+    r = legend.get("depth_range_m")
+    if r is not None and not (isinstance(r, list) and len(r) == 2 and all(_number(v) and v > 0 for v in r)
+                              and r[0] < r[1]):
+        notes.append(f"{name}: ignored (depth_range_m is not two increasing positive numbers)")
+        return None
+    return legend

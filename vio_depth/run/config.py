@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from vio_core.errors import InputError, SettingsError
+from vio_core.limits import MAX_CONFIG_BYTES, read_limited, too_large
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
@@ -106,14 +107,20 @@ def load_config(path, pipeline: PipelineSettings | None = None,
     """Read a TOML config file and apply it on ``pipeline`` / ``run``.
 
     Raises:
-        InputError: the file is missing or unreadable.
+        InputError: the file is missing, unreadable or larger than
+            :data:`vio_core.limits.MAX_CONFIG_BYTES` (checked before reading it).
         SettingsError: invalid TOML, an unknown table or key, or an invalid value (named).
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        data, size = read_limited(path, MAX_CONFIG_BYTES)
+        if data is None:
+            raise InputError(f"{path}: {too_large(size, MAX_CONFIG_BYTES, 'a config file')}")
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: config file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read config file ({exc})") from None
     try:
