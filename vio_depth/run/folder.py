@@ -12,10 +12,23 @@ system) and moves the complete result into place only at the end:
 
 Refused before anything is written (:func:`check_out_path`, :meth:`OutputFolder.claim`):
 ``--out`` that is a file, equal to / inside / containing an input (the sequence folder,
-``--disparity-dir``, ``--model``, ``--config``), under ``/proc``, ``/sys`` or ``/dev``, or
-too long a name; a non-empty ``--out`` holding a vio-depth run unless ``--overwrite`` or
-``--resume``; a non-empty ``--out`` that holds no vio-depth run, always (vio-depth never
-replaces a folder it did not write); a staging folder locked by a live run.
+``--disparity-dir``, ``--model``, ``--config``) or whose staging folder would be one, under
+``/proc``, ``/sys`` or ``/dev``, too long a name, or a symbolic link to nothing; a non-empty
+``--out`` holding a vio-depth run unless ``--overwrite`` or ``--resume``; a non-empty
+``--out`` that holds no vio-depth run, always (vio-depth never replaces a folder it did not
+write); a staging folder locked by a live run.
+
+**What vio-depth may delete** (issue 23): only folders that carry its marker
+(:mod:`vio_depth.run.marker`, ``vio-depth-run.json``, written first into every staging
+folder): the old content of ``--out`` after the swap (its marker must still carry the id
+read when the run started), a staging folder discarded with ``--overwrite`` or left over
+from a finished swap, and the per-frame files a resume prunes inside its own staging
+folder. A folder with the staging name but no marker is refused, never deleted (an input
+folder named ``.out.vio-depth-partial`` was deleted as a "leftover staging folder").
+
+**A symbolic link as ``--out``** is followed: the staging folder is made next to the
+link's target and the result replaces the target's content; the link stays. A link to
+nothing is refused (the run used to replace the link itself with a folder).
 
 While a run works, its staging folder holds the **journal** (``journal.jsonl``: the run
 header, then one frame record per completed frame, appended after that frame's files are
@@ -27,8 +40,6 @@ leaves the staging folder; ``--resume`` continues it (:mod:`vio_depth.run.resume
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import enum
 import errno
 import fcntl
@@ -43,6 +54,8 @@ from typing import Iterable
 from vio_core.errors import InputError
 
 from ..io.depth_png import write_bytes_atomic
+from .marker import RUN_MARKER, read_marker, write_marker
+from .swap import aside_path, replace_folder
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +87,15 @@ def _real(path: Path) -> Path:
     return Path(os.path.realpath(path))
 
 
+def resolve_out(out) -> Path:
+    """``out`` as an absolute path, a symbolic link in its last component followed (so that
+    the staging folder, the swap and every message name the same folder)."""
+    out = Path(os.path.abspath(out))
+    if os.path.islink(out):
+        return _real(out)
+    return out
+
+
 def _inside(child: Path, parent: Path) -> bool:
     return child == parent or parent in child.parents
 
@@ -94,14 +116,21 @@ def check_out_path(out, inputs: Iterable = ()) -> Path:
         inputs: paths the run reads (sequence folder, disparity folder, model, config file).
 
     Returns:
-        ``out`` as an absolute path (symlinks kept).
+        ``out`` as an absolute path; a symbolic link in its last component is followed
+        (:func:`resolve_out`).
 
     Raises:
-        OutputFolderError: ``out`` is an existing file, lies under /proc, /sys or /dev, is
-            equal to or inside an input folder, contains an input, or has a name longer than
-            the file system allows.
+        OutputFolderError: ``out`` is an existing file, a symbolic link to nothing, lies
+            under /proc, /sys or /dev, is equal to or inside an input folder, contains an
+            input, its staging folder would be, contain or lie in an input, or has a name
+            longer than the file system allows.
     """
-    out = Path(os.path.abspath(out))
+    given = Path(os.path.abspath(out))
+    if os.path.islink(given) and not os.path.exists(given):
+        raise OutputFolderError(f"{given}: is a symbolic link to {os.readlink(given)}, which does not exist; "
+                                "vio-depth follows a link named by --out but never replaces the link itself "
+                                "(create the target folder, or choose another --out)")
+    out = resolve_out(given)
     if out.name in ("", ".", ".."):
         raise OutputFolderError(f"{out}: not usable as an output folder")
     real = _real(out)
@@ -124,6 +153,11 @@ def check_out_path(out, inputs: Iterable = ()) -> Path:
         if _inside(src, real):
             raise OutputFolderError(f"{out}: contains the input {given}; a run may replace --out, so it must "
                                     "not hold any input (choose another --out)")
+        for side in (staging_path(out), aside_path(out)):
+            side_real = _real(side)
+            if _inside(side_real, src) or _inside(src, side_real):
+                raise OutputFolderError(f"{out}: its staging folder {side} would be, lie in or contain the input "
+                                        f"{given}; vio-depth never writes into its inputs (choose another --out)")
     for part in out.parts:
         if len(os.fsencode(part)) > 255:
             raise OutputFolderError(f"{out}: cannot use it as output folder (name too long: "
@@ -133,8 +167,9 @@ def check_out_path(out, inputs: Iterable = ()) -> Path:
 
 def staging_path(out) -> Path:
     """The staging folder of ``out``: ``.<name>.vio-depth-partial`` in the same parent
-    (with a hash instead of the full name when that would exceed 255 bytes)."""
-    out = Path(os.path.abspath(out))
+    (with a hash instead of the full name when that would exceed 255 bytes); next to the
+    target when ``out`` is a symbolic link."""
+    out = resolve_out(out)
     name = f".{out.name}{STAGING_SUFFIX}"
     if len(os.fsencode(name)) > 255:
         digest = hashlib.sha1(os.fsencode(out.name)).hexdigest()[:12]
@@ -143,16 +178,9 @@ def staging_path(out) -> Path:
 
 
 def is_run_folder(path) -> bool:
-    """True when ``path`` holds a vio-depth run: a ``frames.jsonl`` whose first line is a run
-    header or a frame record (also runs written before the header existed)."""
-    jsonl = Path(path) / "frames.jsonl"
-    try:
-        with open(jsonl, "rb") as fh:
-            first = fh.readline(1 << 20)
-        obj = json.loads(first)
-    except (OSError, ValueError):
-        return False
-    return isinstance(obj, dict) and (obj.get("record") in ("run", "frame") or "frame" in obj)
+    """True when ``path`` holds a vio-depth run: it carries vio-depth's run marker
+    (:mod:`vio_depth.run.marker`). A ``frames.jsonl`` alone proves nothing (issue 23)."""
+    return read_marker(path, "run") is not None
 
 
 def _listing(path: Path) -> list[str]:
@@ -162,50 +190,6 @@ def _listing(path: Path) -> list[str]:
         return []
     except OSError as exc:
         raise _os_error(path, exc, "read the output folder") from None
-
-
-# --------------------------------------------------------------------------- atomic swap
-_RENAME_EXCHANGE = 2
-_AT_FDCWD = -100
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Atomically swap two paths (Linux renameat2 RENAME_EXCHANGE); False when unsupported."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return False
-    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
-        return False
-    raise OSError(err, os.strerror(err), str(b))
-
-
-def replace_folder(new: Path, target: Path) -> None:
-    """Move the folder ``new`` to ``target``, replacing ``target`` (a folder) when it exists.
-
-    With ``target`` present, the two are exchanged atomically where the OS can (Linux), else
-    ``target`` is renamed aside first; the old content is deleted afterwards.
-    """
-    if not os.path.lexists(target):
-        os.rename(new, target)
-        return
-    if _exchange(new, target):
-        shutil.rmtree(new, ignore_errors=True)  # ``new`` now holds the old content
-        return
-    aside = target.parent / f".{target.name}.vio-depth-old"
-    shutil.rmtree(aside, ignore_errors=True)
-    os.rename(target, aside)
-    try:
-        os.rename(new, target)
-    except OSError:
-        os.rename(aside, target)
-        raise
-    shutil.rmtree(aside, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- the folder
@@ -228,6 +212,9 @@ class OutputFolder:
         self.staging = staging_path(self.out)
         self._lock_fd: int | None = None
         self._journal_fd: int | None = None
+        #: the marker id of the finished run in ``out`` when the run started (None: ``out``
+        #: was missing or empty); only that content is deleted after the swap
+        self._replaces: str | None = None
 
     @property
     def journal(self) -> Path:
@@ -235,15 +222,22 @@ class OutputFolder:
 
     # ------------------------------------------------------------------ checks
     def existing_run(self) -> bool:
-        """True when ``out`` holds a finished run; raises when it holds anything else."""
+        """True when ``out`` holds a finished run (it carries vio-depth's marker); raises when
+        it holds anything else."""
         entries = _listing(self.out)
         if not entries:
+            self._replaces = None
             return False
-        if is_run_folder(self.out):
+        ident = read_marker(self.out, "run")
+        if ident is not None:
+            self._replaces = ident
             return True
+        old = (" (runs written by vio-depth 0.2.0 or earlier carry none: delete such a run yourself)"
+               if (self.out / "frames.jsonl").is_file() else "")
         raise OutputFolderError(
-            f"{self.out}: not empty ({len(entries)} entries) and holds no vio-depth run; vio-depth never "
-            "replaces a folder it did not write (choose another --out, or empty it yourself)")
+            f"{self.out}: not empty ({len(entries)} entries) and holds no vio-depth run (no {RUN_MARKER} "
+            f"marker){old}; vio-depth never replaces a folder it did not write (choose another --out, or empty "
+            "it yourself)")
 
     def check_mode(self) -> None:
         """Refuse what the mode does not allow (a finished run without --overwrite/--resume)."""
@@ -254,7 +248,7 @@ class OutputFolder:
     # ------------------------------------------------------------------ staging
     def _lock(self) -> None:
         try:
-            fd = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
+            fd = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
         except OSError as exc:
             raise _os_error(self.staging, exc, "open the staging folder") from None
         try:
@@ -262,7 +256,8 @@ class OutputFolder:
         except OSError:
             os.close(fd)
             raise OutputFolderError(f"{self.out}: another vio-depth run is writing it right now "
-                                    f"(its staging folder {self.staging.name} is locked)") from None
+                                    f"(its staging folder {self.staging.name} is locked); wait for it to "
+                                    "finish") from None
         self._lock_fd = fd
 
     def _make_staging(self) -> None:
@@ -272,10 +267,36 @@ class OutputFolder:
         except OSError as exc:
             raise _os_error(self.staging, exc, "create the staging folder next to --out") from None
         self._lock()
+        try:
+            write_marker(self.staging, "run")  # first, so that vio-depth recognises the folder as its own
+        except OSError as exc:
+            self.release()
+            try:
+                os.rmdir(self.staging)  # just created by this run, and empty
+            except OSError:
+                pass
+            raise _os_error(self.staging, exc, "write into the staging folder") from None
+
+    def _check_staging_is_ours(self) -> None:
+        """Refuse a staging folder that vio-depth did not make (no marker, a link, a file):
+        it is never continued nor deleted. A live run that has just made it (its marker not
+        yet written) is reported as such."""
+        if os.path.islink(self.staging) or not self.staging.is_dir():
+            raise OutputFolderError(f"{self.staging}: has the name of --out's staging folder but is not a folder "
+                                    "vio-depth made; vio-depth never deletes it (move it away, or choose another "
+                                    "--out)")
+        if read_marker(self.staging, "run") is None:
+            self._lock()  # a live run that has just created it: "another run is writing"
+            self.release()
+            raise OutputFolderError(f"{self.staging}: has the name of --out's staging folder but carries no vio-depth "
+                                    f"marker ({RUN_MARKER}); vio-depth never deletes it (move it away, or choose "
+                                    "another --out)")
 
     def _discard_staging(self) -> None:
         self._lock()  # refuses when a live run holds it
         try:
+            if read_marker(self.staging, "run") is None:  # checked again under the lock
+                raise OutputFolderError(f"{self.staging}: carries no vio-depth marker; not deleted")
             shutil.rmtree(self.staging)
         except OSError as exc:
             raise _os_error(self.staging, exc, "remove the old staging folder") from None
@@ -284,9 +305,11 @@ class OutputFolder:
 
     def interrupted(self) -> bool:
         """True when an interrupted run left a staging folder with a journal. A staging
-        folder without one (a crash during the final swap) is removed."""
-        if not self.staging.is_dir():
+        folder of vio-depth's without one (a crash during the final swap) is removed; one
+        that is not vio-depth's is refused (:class:`OutputFolderError`)."""
+        if not os.path.lexists(self.staging):
             return False
+        self._check_staging_is_ours()
         if self.journal.is_file():
             return True
         log.info("removing %s: left over from a finished swap", self.staging)
@@ -297,6 +320,8 @@ class OutputFolder:
         """Start a fresh staging folder (discarding an interrupted run only with --overwrite)."""
         self.check_mode()
         if self.interrupted():
+            self._lock()  # a run still working on it: say so, and never advise --resume
+            self.release()
             if self.mode != OutputMode.OVERWRITE:
                 raise OutputFolderError(
                     f"{self.out}: an interrupted run of it is kept in {self.staging.name}; give --resume to "
@@ -305,8 +330,14 @@ class OutputFolder:
         self._make_staging()
 
     def claim_interrupted(self) -> None:
-        """Lock the staging folder of an interrupted run (``interrupted()`` must be True)."""
+        """Lock the staging folder of an interrupted run (``interrupted()`` must be True);
+        ``out`` must still be empty, missing or a vio-depth run."""
         self._lock()
+        try:
+            self.existing_run()
+        except BaseException:
+            self.release()
+            raise
 
     # ------------------------------------------------------------------ journal
     def start_journal(self, header: dict, records: list[dict] = ()) -> None:
@@ -370,7 +401,7 @@ class OutputFolder:
             self._journal_fd = None
         try:
             self.journal.unlink(missing_ok=True)
-            replace_folder(self.staging, self.out)
+            replace_folder(self.staging, self.out, self._replaces)
         except OSError as exc:
             raise _os_error(self.out, exc, "move the finished run into place") from None
         finally:

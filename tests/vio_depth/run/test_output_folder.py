@@ -15,6 +15,7 @@ from vio_depth.cli import main
 from vio_depth.io.depth_png import read_depth_png
 from vio_depth.run import OutputFolder, OutputFolderError, read_frames_jsonl, staging_path
 from vio_depth.run.folder import JOURNAL_NAME, replace_folder
+from vio_depth.run.marker import write_marker
 
 
 def _run(argv, capsys):
@@ -151,13 +152,15 @@ def test_a_locked_staging_folder_means_another_run_is_writing(mini_street, tmp_p
     out = tmp_path / "out"
     staging = staging_path(out)
     staging.mkdir()
+    write_marker(staging, "run")
     (staging / JOURNAL_NAME).write_text("")
     fd = os.open(staging, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
-        for flag in (["--overwrite"], ["--resume"]):
+        for flag in ([], ["--overwrite"], ["--resume"]):  # issue 23: never "--resume" while it works
             rc, _, err = _run(["run", seq, "--out", out, *flag], capsys)
             _one_line(rc, err, "another vio-depth run is writing it")
+            assert "--resume" not in err
     finally:
         os.close(fd)
     assert staging.is_dir() and not out.exists()
@@ -227,17 +230,44 @@ def test_replace_folder_swaps_and_removes_the_old(tmp_path):
     (new / "a").write_text("new")
     target.mkdir()
     (target / "b").write_text("old")
-    replace_folder(new, target)
+    ident = write_marker(target, "run")
+    replace_folder(new, target, ident)
     assert [p.name for p in target.iterdir()] == ["a"] and not new.exists()
+
+
+def test_replace_folder_never_deletes_what_it_did_not_check(tmp_path):
+    """Issue 23: the old content is deleted only when it still carries the marker id read
+    before the run; anything else is swapped back, untouched."""
+    new, target = tmp_path / "new", tmp_path / "target"
+    new.mkdir()
+    (new / "a").write_text("new")
+    target.mkdir()
+    (target / "b").write_text("user file")
+    write_marker(target, "run")  # another run's id
+    with pytest.raises(OSError, match="changed while the run was working"):
+        replace_folder(new, target, "0" * 32)
+    assert (target / "b").read_text() == "user file" and (new / "a").read_text() == "new"
 
 
 def test_staging_without_journal_is_a_leftover_and_is_removed(tmp_path):
     out = tmp_path / "out"
     staging = staging_path(out)
     staging.mkdir()
+    write_marker(staging, "run")
     (staging / "old.png").write_bytes(b"x")
     folder = OutputFolder(out)
     assert folder.interrupted() is False and not staging.exists()
+
+
+def test_a_staging_name_without_marker_is_never_deleted(tmp_path):
+    """Issue 23, case 1: a folder with the staging name but no marker is refused, not removed."""
+    out = tmp_path / "out"
+    staging = staging_path(out)
+    staging.mkdir()
+    (staging / "photo.jpg").write_bytes(b"x")
+    with pytest.raises(OutputFolderError, match="carries no vio-depth marker"):
+        OutputFolder(out).interrupted()
+    assert (staging / "photo.jpg").read_bytes() == b"x"
 
 
 def test_output_folder_refuses_a_dot_name(tmp_path):

@@ -58,7 +58,7 @@ def _kill_after(argv, out: Path, frames: int, timeout: float = 240.0) -> None:
 
 def _files(out: Path) -> dict:
     return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
-            if p.is_file() and p.name not in ("frames.jsonl", "metrics.json") and "report" not in p.parts}
+            if p.is_file() and p.name not in ("frames.jsonl", "metrics.json", "vio-depth-run.json") and "report" not in p.parts}
 
 
 def _records(out: Path):
