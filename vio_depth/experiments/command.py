@@ -22,6 +22,7 @@ from vio_core.errors import SettingsError
 from .._version import __version__
 from ..evaluation import STUDIES, ExecutorSettings, Task, TaskCache, package_version, run_tasks
 from .document import write_document
+from .eval_folder import EvalFolder
 from .plan import ResolvedEntry, SequenceEntry, resolve_entry
 from .results import FRAME_COLUMNS, RESULT_COLUMNS, STUDY_COLUMNS, write_csv, write_json
 from .runner import run_variant_task
@@ -183,14 +184,26 @@ def run_evaluation(request: EvalRequest) -> EvalOutcome:
 
     Raises:
         InputError / SettingsError: a sequence cannot be evaluated or an option is invalid
-            (before any task runs); TaskError: a task failed (finished tasks stay cached).
+            (before any task runs); OutputFolderError: ``request.out`` cannot be used
+            (:mod:`.eval_folder`, before anything is written); TaskError: a task failed
+            (finished tasks stay cached).
     """
     if not request.entries:
         raise SettingsError("no sequence to evaluate (give SEQ... or --kitti-split FILE --kitti-root DIR)")
     if request.study_frames < 1:
         raise SettingsError(f"--study-frames must be >= 1, got {request.study_frames}")
-    out = Path(request.out)
+    folder = EvalFolder(request.out, [e.path for e in request.entries] + [request.compare_with],
+                        markdown=request.markdown)
     resolved = _unique_labels([resolve_entry(e) for e in request.entries])
+    folder.claim()  # the same refusals as `vio-depth run --out`, before anything is written
+    try:
+        return _evaluate(request, resolved, folder.out)
+    finally:
+        folder.release()
+
+
+def _evaluate(request: EvalRequest, resolved: list[ResolvedEntry], out: Path) -> EvalOutcome:
+    """The tasks of ``request`` run and their results written into ``out`` (claimed)."""
     cache = out / "cache"
     pairs = build_tasks(resolved, request, str((cache / "disparity").resolve()))
     tasks = [t for t, _ in pairs]
