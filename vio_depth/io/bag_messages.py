@@ -9,7 +9,8 @@ message                         becomes
                                 ``bgr8``/``8UC3``/``bgra8``/``rgba8``/``rgb8`` reordered, ``mono16``/``16UC1``
                                 scaled to 8 bits (``round(v / 257)``, as the ASL loader), Bayer 8-bit
                                 patterns demosaiced (OpenCV); rows honour ``step``, big-endian 16-bit honoured
-``sensor_msgs/CompressedImage`` decoded by OpenCV (JPEG, PNG; 8 or 16 bits; codec warnings are errors);
+``sensor_msgs/CompressedImage`` decoded by OpenCV (JPEG, PNG; 8 or 16 bits; codec warnings are errors,
+                                damaged data a ``CorruptImageError``: the frame's status in a run);
                                 ``compressedDepth`` is refused
 ``sensor_msgs/CameraInfo``      :class:`~vio_core.camera.Camera`: ``K``; ``plumb_bob`` (5) /
                                 ``rational_polynomial`` (8) -> ``radtan``, ``equidistant`` (4) -> ``equidistant``;
@@ -30,9 +31,9 @@ import cv2
 import numpy as np
 
 from vio_core.camera import Camera
-from vio_core.errors import InputError
+from vio_core.errors import CorruptImageError, InputError
 
-from .decode import decode_image_checked
+from .decode import CorruptData, decode_image_checked
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -114,6 +115,8 @@ def compressed_image(msg, where: str) -> np.ndarray:
     """(H, W, 3) uint8 RGB of a ``sensor_msgs/CompressedImage`` (JPEG or PNG, 8 or 16 bits)."""
     check_image_encoding(msg, COMPRESSED_IMAGE, where)
     image, problem = decode_image_checked(bytes(np.asarray(msg.data, dtype=np.uint8)), cv2.IMREAD_UNCHANGED)
+    if image is None and isinstance(problem, CorruptData):  # a status in a run: one damaged frame goes by
+        raise CorruptImageError(where, f"damaged {msg.format or 'compressed'} image: {problem}")
     if image is None:
         raise InputError(f"{where}: cannot decode the {msg.format or 'compressed'} image"
                          f"{': ' + problem if problem else ''}")

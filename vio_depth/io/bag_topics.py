@@ -30,8 +30,11 @@ _FLAGS = {"image": "--image-topic", "imu": "--imu-topic", "camera_info": "--came
 def reader_error(path, exc: BaseException) -> InputError:
     """One line for an exception of the bag libraries (damaged or truncated bag, bad definitions)."""
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return InputError(f"{path}: cannot read the bag ({type(exc).__name__}: {text}); is it complete? A ROS 1 bag "
-                      "cut short needs `rosbag reindex`, an MCAP file `mcap recover`")
+    kind = bag_kind(Path(path))
+    hint = {"ROS 1 bag": "`rosbag reindex` repairs a bag cut short", "MCAP file": "`mcap recover` repairs a file "
+            "cut short"}.get(kind, "a damaged SQLite3 file can be salvaged with `sqlite3 FILE .recover`"
+                                   if "sqlite3" in kind else "`mcap recover` repairs an MCAP file cut short")
+    return InputError(f"{path}: cannot read the {kind} ({type(exc).__name__}: {text}); is it complete? {hint}")
 
 
 def bag_kind(path: Path) -> str:
@@ -50,8 +53,15 @@ def open_reader(path) -> tuple[AnyReader, str]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file or directory")
-    if path.is_file() and path.stat().st_size == 0:
-        raise InputError(f"{path}: empty file (not a bag)")
+    if path.is_file():
+        with open(path, "rb") as fh:
+            magic = fh.read(8)
+        if not magic:
+            raise InputError(f"{path}: empty file (not a bag)")
+        for prefix, suffix, what in ((b"#ROSBAG", ".bag", "a ROS 1 bag"), (b"\x89MCAP", ".mcap", "an MCAP file"),
+                                     (b"SQLite f", ".db3", "a SQLite3 database")):
+            if magic.startswith(prefix) and path.suffix != suffix:
+                raise InputError(f"{path}: {what}, but not named *{suffix} (the readers go by the name)")
     try:
         # ROS 2 bags may carry no message definitions (older rosbag2): the standard ones are then used
         reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))

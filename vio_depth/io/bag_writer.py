@@ -17,14 +17,18 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import cv2
 import numpy as np
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin, Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
 from vio_core.camera import Camera
 from vio_core.checks import check_array
 from vio_core.errors import InputError
+
+from .asl import AslSequence, asl_root, read_asl_images_csv, read_asl_table
 
 #: bag kinds :class:`BagWriter` writes
 BAG_KINDS = ("ros1", "ros2", "mcap")
@@ -194,6 +198,8 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise InputError(f"{self.path}: already exists (a bag is written new)")
+        if kind == "ros1" and self.path.suffix != ".bag":
+            raise InputError(f"{self.path}: a ROS 1 bag is named *.bag")
         self.kind = kind
         self.messages = RosMessages(ros1=kind == "ros1")
         if kind == "ros1":
@@ -226,4 +232,67 @@ class BagWriter:
         self.close()
 
 
-__all__ = ["BAG_KINDS", "BagWriter", "RosMessages"]
+#: image forms :func:`asl_to_bag` writes
+IMAGE_FORMS = ("raw", "png", "jpeg")
+#: pose message types :func:`asl_to_bag` writes
+POSE_FORMS = ("pose", "transform", "odometry")
+
+
+def asl_to_bag(asl_folder, path, kind: str, *, image_form: str = "raw", pose_form: str = "pose",
+               image_topic: str = "/cam0/image_raw", imu_topic: str = "/imu0", info_topic: str = "/cam0/camera_info",
+               pose_topic: str = "/groundtruth") -> Path:
+    """Convert an ASL folder (EuRoC / TUM-VI layout) into a bag, streaming.
+
+    The numbers are the folder's own (nanosecond stamps, the csv values), so a run on the
+    bag with the folder's calibration as Kalibr files equals a run on the folder
+    (docs/ros.md). Images: ``raw`` (``mono8`` / ``bgr8`` as the PNG holds, ``mono16`` for
+    16-bit), ``png`` (the PNG files' own bytes, ``CompressedImage``) or ``jpeg`` (re-encoded,
+    lossy). Ground truth (the IMU frame's pose) as ``PoseStamped``, ``TransformStamped`` or
+    ``Odometry`` (its twist: the 17-column table's velocity in the body frame; an 8-column
+    table has none and is refused). Bag time = header stamp.
+    """
+    if image_form not in IMAGE_FORMS or pose_form not in POSE_FORMS:
+        raise InputError(f"image_form must be one of {IMAGE_FORMS}, pose_form one of {POSE_FORMS}")
+    seq = AslSequence(asl_folder)
+    mav0 = asl_root(asl_folder)
+    t_images, names, _ = read_asl_images_csv(mav0 / "cam0" / "data.csv")
+    with BagWriter(path, kind) as w:
+        m = w.messages
+        if (mav0 / "imu0").is_dir():
+            t_imu, v, _ = read_asl_table(mav0 / "imu0" / "data.csv", 7, "IMU", "t, w, a")
+            for t, row in zip(t_imu, v):
+                w.write(imu_topic, m.imu(int(t), "imu0", row[:3], row[3:6]))
+        if seq.ground_truth is not None:
+            t_gt, v, _ = read_asl_table(seq.ground_truth.path, (8, 17), "ground truth", "t, p, q[, v, bw, ba]")
+            if pose_form == "odometry" and v.shape[1] < 16:
+                raise InputError(f"{seq.ground_truth.path}: Odometry needs velocities (the 17-column table)")
+            for t, row in zip(t_gt, v):
+                if pose_form == "pose":
+                    msg = m.pose_stamped(int(t), "world", row[:3], row[3:7])
+                elif pose_form == "transform":
+                    msg = m.transform_stamped(int(t), "world", "imu0", row[:3], row[3:7])
+                else:  # the twist is in the body frame: v_b = R_w_b^T v_w
+                    q = row[3:7] / np.linalg.norm(row[3:7])
+                    R_w_b = Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()
+                    msg = m.odometry(int(t), "world", "imu0", row[:3], row[3:7], R_w_b.T @ row[7:10])
+                w.write(pose_topic, msg)
+        for t, name in zip(t_images, names):
+            t = int(t)
+            data = (mav0 / "cam0" / "data" / name).read_bytes()
+            if image_form == "png":
+                msg = m.compressed_image(t, "cam0", data, "png")
+            else:
+                pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+                if image_form == "jpeg":
+                    ok, buf = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 95])
+                    msg = m.compressed_image(t, "cam0", buf.tobytes(), "jpeg")
+                elif pixels.ndim == 2:
+                    msg = m.image(t, "cam0", pixels, "mono16" if pixels.dtype == np.uint16 else "mono8")
+                else:
+                    msg = m.image(t, "cam0", np.ascontiguousarray(pixels[:, :, :3]), "bgr8")
+            w.write(image_topic, msg)
+            w.write(info_topic, m.camera_info(t, "cam0", seq.camera))
+    return Path(path)
+
+
+__all__ = ["BAG_KINDS", "BagWriter", "IMAGE_FORMS", "POSE_FORMS", "RosMessages", "asl_to_bag"]
