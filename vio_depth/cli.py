@@ -53,6 +53,7 @@ from .run import (
     staging_path,
 )
 from .run.folder import JOURNAL_NAME
+from .run.ranges import check_settings
 
 log = logging.getLogger("vio_depth")
 
@@ -213,7 +214,9 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
         run = replace(run, backfill=False)
     if args.no_evaluation:
         run = replace(run, evaluate=False)
-    return s, _exports_from_args(args, run)
+    run = _exports_from_args(args, run)
+    check_settings(s, run)  # every numeric setting within its documented range (vio_depth/run/ranges.py)
+    return s, run
 
 
 def _exports_from_args(args, run: RunSettings) -> RunSettings:

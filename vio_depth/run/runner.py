@@ -27,6 +27,7 @@ from ..pipeline import FrameResult, FrameStatus, Pipeline, PreparedFrame
 from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
+from .ranges import check_settings
 from .outputs import RunOutputs
 from .overlap import (
     OrderedWriter,
@@ -101,6 +102,7 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
         InputError: unreadable inputs; ``out_dir`` is untouched and the partial run stays
             in the staging folder for ``mode="resume"``.
     """
+    check_settings(pipeline.settings, settings)  # API callers too: every setting within its documented range
     folder = OutputFolder(out_dir, mode, inputs=[sequence.root, *inputs])
     n_total = len(sequence)
     n = n_total if not settings.max_frames else min(n_total, settings.max_frames)
