@@ -14,7 +14,14 @@ module             job
 =================  ==========================================================================
 """
 
-from .base import DisparityKind, DisparitySource, DisparitySpec, check_disparity
+from .base import (
+    DisparityKind,
+    DisparitySource,
+    DisparitySpec,
+    ExplainsMissing,
+    check_disparity,
+    missing_disparity_reason,
+)
 from .cache import CachedDisparitySource, cache_key
 from .densify import GtDisparitySettings, densify_depth, simulate_gt_disparity
 from .model import ModelDisparity
@@ -38,6 +45,7 @@ __all__ = [
     "DisparitySimulation",
     "DisparitySource",
     "DisparitySpec",
+    "ExplainsMissing",
     "FileDisparity",
     "GtDisparitySettings",
     "ModelDisparity",
@@ -51,6 +59,7 @@ __all__ = [
     "densify_depth",
     "disparity_preset",
     "disparity_presets",
+    "missing_disparity_reason",
     "rank_correlation",
     "simulate_disparity",
     "simulate_gt_disparity",

@@ -43,6 +43,22 @@ class DisparitySource(Protocol):
         """(H, W) float32 disparity of ``frame`` (NaN = invalid pixel), or None when absent."""
 
 
+@runtime_checkable
+class ExplainsMissing(Protocol):
+    """A disparity source that can say why it has no map for a frame (a missing file, named)."""
+
+    def missing_reason(self, frame: Frame) -> str:
+        """One line: why ``source(frame)`` gave None."""
+
+
+def missing_disparity_reason(source, frame: Frame) -> str:
+    """Why ``source`` has no map for ``frame``: the source's own words when it can say
+    (:class:`ExplainsMissing`: a file source names the missing file), else a general line."""
+    if isinstance(source, ExplainsMissing):
+        return source.missing_reason(frame)
+    return "no disparity map for this frame"
+
+
 @dataclass(frozen=True)
 class DisparitySpec:
     """The disparity a sequence carries, as its loader declares it.

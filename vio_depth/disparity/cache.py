@@ -30,7 +30,7 @@ import numpy as np
 from vio_core.errors import InputError
 
 from ..frame import Frame
-from .base import DisparitySource
+from .base import DisparitySource, missing_disparity_reason
 
 #: file written instead of a map when the source has none for a frame
 _NONE_SUFFIX = ".none"
@@ -71,6 +71,10 @@ class CachedDisparitySource:
 
     def path_for(self, frame: Frame) -> Path:
         return self.folder / f"{int(frame.index):06d}_{frame.stem}.npy"
+
+    def missing_reason(self, frame: Frame) -> str:
+        """The wrapped source's reason for having no map for ``frame``."""
+        return missing_disparity_reason(self.source, frame)
 
     def _read(self, path: Path, none_marker: Path) -> tuple[bool, np.ndarray | None]:
         """``(found, map)``: the stored map (or None for a stored "no map"), if readable."""

@@ -39,6 +39,10 @@ class FileDisparity:
     def path_for(self, frame: Frame) -> Path:
         return self.folder / f"{frame.stem}.npy"
 
+    def missing_reason(self, frame: Frame) -> str:
+        """Why there is no map for ``frame``: its file, named (status ``no_disparity``)."""
+        return f"disparity file {self.path_for(frame)} not found (one <image stem>.npy per frame)"
+
     def __call__(self, frame: Frame) -> np.ndarray | None:
         path = self.path_for(frame)
         if not path.is_file():

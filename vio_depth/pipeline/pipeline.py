@@ -14,7 +14,13 @@ from dataclasses import replace
 from matchers import Features, Matcher, create_matcher
 from vio_core.errors import CorruptImageError, InputError, SettingsError
 
-from ..disparity import DisparitySource, check_inversion, check_map_content, create_disparity_source
+from ..disparity import (
+    DisparitySource,
+    check_inversion,
+    check_map_content,
+    create_disparity_source,
+    missing_disparity_reason,
+)
 from ..evaluation import PointSourceKind
 from ..frame import Frame
 from ..poses import GroundTruthPoses, PoseSource, TrackingPoseSource, VioSettings, create_pose_source
@@ -153,7 +159,8 @@ class Pipeline:
         result = FrameResult(frame.index, frame.stem, frame.timestamp, points.status, points.reason, spec, points,
                              timings=timings, frame_pose=frame_pose)
         if disparity is None:
-            result.status, result.reason = FrameStatus.NO_DISPARITY, "no disparity map for this frame"
+            result.status = FrameStatus.NO_DISPARITY
+            result.reason = missing_disparity_reason(self.disparity_source, frame)  # names a missing file
             log.debug("frame %d: no disparity map", frame.index)
             return result
 
