@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer as McapWriter
 from scipy.spatial.transform import Rotation
 
@@ -131,29 +132,41 @@ class McapFileOutput:
         self._file.close()
 
     def abort(self) -> None:
+        """Close the file as it is (no summary: the run failed; the staging folder holds it)."""
         self._file.close()
 
 
 class Rosbag2Output:
-    """Messages into a ROS 2 SQLite3 bag folder (through ``rosbags``)."""
+    """Messages into a ROS 2 SQLite3 bag folder (through ``rosbags``).
+
+    SQLite connections belong to the thread that opened them, while a run writes from its
+    writer thread and closes from the calling one: the messages go to an MCAP file beside
+    the folder first, which :meth:`close` copies into the bag, in time order, and removes.
+    """
 
     def __init__(self, path, messages: RosMessages):
         self.path = Path(path)
+        if self.path.exists():
+            raise InputError(f"{self.path}: already exists (a bag is written new)")
         self.messages = messages
-        self._bag = BagWriter(self.path, "ros2")
-        self._bag.messages = messages
+        self._spool_path = self.path.with_name(self.path.name + ".spool.mcap")
+        self._spool = McapFileOutput(self._spool_path, messages)
 
     def write(self, topic: str, msg, log_ns: int) -> None:
-        self._bag.write(topic, msg, log_ns)
+        self._spool.write(topic, msg, log_ns)
 
     def close(self) -> None:
-        self._bag.close()
+        self._spool.close()
+        with open(self._spool_path, "rb") as fh, BagWriter(self.path, "ros2") as bag:
+            bag.messages = self.messages
+            reader = make_reader(fh)
+            for schema, channel, message in reader.iter_messages(log_time_order=True):
+                bag.write_raw(channel.topic, schema.name, message.log_time, message.data)
+        self._spool_path.unlink()
 
     def abort(self) -> None:
-        try:
-            self._bag.close()
-        except Exception:  # an aborted run: the partial bag is discarded with the staging folder
-            pass
+        self._spool.abort()
+        self._spool_path.unlink(missing_ok=True)
 
 
 class RosRunWriter:
@@ -207,17 +220,17 @@ class RosRunWriter:
             self._write("points", m.point_cloud(t, cam, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "sigma": sigma,
                                                           "inlier": inlier}), t)
 
-    def finish(self, trajectory: CameraTrajectory | None, frames=()) -> Path:
+    def finish(self, sequence, trajectory: CameraTrajectory | None) -> Path:
         """Write the camera poses (``pose`` and ``tf``) and close the file.
 
         Args:
+            sequence: the run's sequence (its frames' stamps: trajectory times are seconds).
             trajectory: the run's camera trajectory (``t`` seconds, ``T_w_c``), or None.
-            frames: ``(timestamp seconds, stamp ns)`` pairs of the run's frames, to stamp the
-                poses with the frames' exact stamps (trajectory times are seconds).
         """
         if trajectory is not None and len(trajectory):
             m, s = self.messages, self.settings
-            exact = {float(t): int(ns) for t, ns in frames}
+            frames = (sequence.frame(i) for i in range(len(sequence)))
+            exact = {float(f.timestamp): frame_stamp_ns(f) for f in frames}
             for t, T in zip(trajectory.t, trajectory.T_w_c):
                 ns = exact.get(float(t), int(round(float(t) * 1e9)))
                 q, p = _q_wxyz(T[:3, :3]), T[:3, 3]

@@ -210,16 +210,20 @@ class BagWriter:
         self._writer.open()
         self._connections: dict[str, object] = {}
 
-    def write(self, topic: str, msg, bag_ns: int | None = None) -> None:
-        """Write ``msg`` (built by :attr:`messages`) on ``topic`` at bag time ``bag_ns`` (default: its header stamp)."""
+    def write_raw(self, topic: str, msgtype: str, bag_ns: int, data: bytes) -> None:
+        """Write an already serialised message of ``msgtype`` (serialised for this bag's ROS version)."""
         conn = self._connections.get(topic)
         if conn is None:
-            conn = self._writer.add_connection(topic, msg.__msgtype__, typestore=self.messages.typestore)
+            conn = self._writer.add_connection(topic, msgtype, typestore=self.messages.typestore)
             self._connections[topic] = conn
+        self._writer.write(conn, int(bag_ns), data)
+
+    def write(self, topic: str, msg, bag_ns: int | None = None) -> None:
+        """Write ``msg`` (built by :attr:`messages`) on ``topic`` at bag time ``bag_ns`` (default: its header stamp)."""
         if bag_ns is None:
             header = msg.header if hasattr(msg, "header") else msg.transforms[0].header
             bag_ns = int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-        self._writer.write(conn, int(bag_ns), self.messages.serialize(msg))
+        self.write_raw(topic, msg.__msgtype__, bag_ns, self.messages.serialize(msg))
 
     def close(self) -> Path:
         self._writer.close()

@@ -230,10 +230,13 @@ class RerunSink:
         return self.final
 
     def abort(self) -> None:
+        """Close the view; a partial ``.rrd`` is removed (a resumed run logs every frame again)."""
         try:
             self.view.close()
         except Exception:  # the run's own error is what the user needs to see
             log.debug("closing the Rerun view after a failed run", exc_info=True)
+        if self.view.save_path is not None:
+            self.view.save_path.unlink(missing_ok=True)
 
 
 __all__ = ["MAX_TRAJECTORY_POINTS", "POINT_COLOUR_RANGE", "RerunSink", "RerunView", "blueprint", "frame_pose"]
