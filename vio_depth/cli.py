@@ -12,7 +12,8 @@ an unusable ``--out``) print one line on stderr and exit with code 1; no traceba
 ``--out`` is untouched (a run writes into a staging folder and moves the result into place
 at the end; ``--overwrite`` replaces an earlier run, ``--resume`` continues an interrupted
 one). Exit codes (docs/safety.md): 0 success, 1 error, 2 malformed command line, 3 the run
-finished but too few frames got metric depth ("nothing came out"), 130 interrupted.
+finished but too few frames got metric depth ("nothing came out"), 130 interrupted (Ctrl-C
+or SIGTERM; the partial run is kept for ``--resume``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import logging
+import signal
 import sys
+import threading
 from dataclasses import replace
 
 from matchers import uses_device
@@ -94,7 +97,8 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     d.add_argument("--model-input-size", type=int, default=None, metavar="PX",
                    help="Depth Anything input size (default 518)")
     r = p.add_argument_group("run")
-    r.add_argument("--max-frames", type=int, default=None, metavar="N", help="process only the first N frames")
+    r.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="process only the first N frames (0, the default: all)")
     r.add_argument("--no-backfill", action="store_true", default=None,
                    help="streaming behaviour only: no backward pass for the first frames that found no "
                         "earlier partner (see docs/design.md)")
@@ -364,12 +368,32 @@ def _safe_streams() -> None:
             pass
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a robot's process manager, ``docker stop``) handled like Ctrl-C."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _safe_streams()
     args = _build_parser().parse_args(argv)
     args.command_line = ["vio-depth", *argv]
     _configure_logging(args.verbose, args.quiet)
+    previous = None
+    if threading.current_thread() is threading.main_thread():  # signals reach the main thread only
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(args) -> int:
+    """The command of ``args``; known errors become one line and an exit code (docs/safety.md)."""
     try:
         if args.command == "presets":
             return _cmd_presets()
@@ -390,8 +414,9 @@ def main(argv=None) -> int:
         print(f"vio-depth: error: {where}{exc.strerror or exc}{getattr(exc, 'vio_depth_note', '')}",
               file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt as exc:
-        print(f"vio-depth: interrupted{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated): the same exit, resumable
+        how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
+        print(f"vio-depth: interrupted{how}{getattr(exc, 'vio_depth_note', '')}", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 
