@@ -61,6 +61,8 @@ from tqdm import tqdm
 from vio_core.environment import environ
 from vio_core.errors import MissingDependencyError, SettingsError, UnknownNameError, VioDepthError
 
+log = logging.getLogger(__name__)
+
 #: executor kinds of :class:`ExecutorSettings`
 EXECUTORS = ("sequential", "local", "ray")
 #: environment variables that bound the threads of numerical libraries in workers
@@ -372,18 +374,64 @@ def _run_local(pending, runner, executor: ExecutorSettings, finish) -> None:
         raise first_error
 
 
+#: the first Ray release with token authentication (``RAY_AUTH_MODE=token``), and the first
+#: that asks for it by default for local instances
+RAY_TOKEN_AUTH_VERSION = (2, 52)
+RAY_TOKEN_AUTH_DEFAULT_VERSION = (2, 59)
+
+
+def _version_tuple(text: str) -> tuple[int, ...]:
+    parts = []
+    for p in text.split(".")[:2]:
+        digits = "".join(c for c in p if c.isdigit())
+        parts.append(int(digits) if digits else 0)
+    return tuple(parts)
+
+
+def local_ray_problem(ray_version: str, auth_mode: str | None) -> str:
+    """Why a private local Ray instance would be open to other machines ("" when it is not).
+
+    Ray's services listen on every network interface and Ray deliberately never uses the
+    loopback address for a node (``ray._private.services.resolve_ip_for_localhost``), so a
+    local instance cannot be bound to localhost (measured with Ray 2.60: ``gcs_server`` and
+    ``raylet`` on ``*:port``). What keeps other machines out is Ray's token authentication
+    (``RAY_AUTH_MODE=token``): Ray 2.52-2.58 have it when the variable is set before the
+    command starts (setting it later does not reach Ray), Ray >= 2.59 by default for local
+    instances unless ``RAY_AUTH_MODE=disabled``; older Ray has none (docs/safety.md, "Security").
+    """
+    v = _version_tuple(ray_version)
+    if v < RAY_TOKEN_AUTH_VERSION:
+        return (f"Ray {ray_version} has no authentication and its services listen on every network interface: "
+                "anyone who can reach this machine can run code in the evaluation's workers (use Ray >= 2.59, or "
+                "--executor local on a machine others can reach)")
+    token = auth_mode == "token" or (auth_mode is None and v >= RAY_TOKEN_AUTH_DEFAULT_VERSION)
+    if not token:
+        return (f"Ray {ray_version} runs without authentication (RAY_AUTH_MODE is {auth_mode or 'unset'}) and its "
+                "services listen on every network interface: anyone who can reach this machine can run code in "
+                "the evaluation's workers (set RAY_AUTH_MODE=token before the command)")
+    return ""
+
+
 def _run_ray(pending, runner, executor: ExecutorSettings, finish) -> None:
     try:
         import ray
     except ImportError:
         raise MissingDependencyError("ray", "ray", "the ray executor") from None
     env = {} if executor.threads_per_worker is None else {k: str(executor.threads_per_worker) for k in THREAD_ENV_VARS}
+    if executor.address is None and not ray.is_initialized():
+        problem = local_ray_problem(ray.__version__, os.environ.get("RAY_AUTH_MODE"))
+        if problem:
+            log.warning("%s", problem)
+    _run_ray_tasks(ray, pending, runner, executor, finish, env)
+
+
+def _run_ray_tasks(ray, pending, runner, executor: ExecutorSettings, finish, env: dict) -> None:
     started = False
     if not ray.is_initialized():
         kwargs = dict(runtime_env={"env_vars": env}, log_to_driver=False, logging_level=logging.WARNING)
         if executor.address is not None:
             ray.init(address=executor.address, **kwargs)
-        else:
+        else:  # a private instance without dashboard and job API (local_ray_environment: authentication)
             ray.init(num_cpus=executor.n_workers, include_dashboard=False, **kwargs)
         started = True
     first_error: TaskError | None = None
