@@ -32,7 +32,7 @@ from vio_core.settings import override
 
 from ._version import __version__
 from .cli_robot import add_input_flags, add_inspect_parser, add_output_flags, cmd_inspect, input_paths, open_input, \
-    sink_factories
+    sink_factories, written_outputs
 from .disparity import DISPARITY_CHOICES, disparity_presets
 from .evaluation import POINT_SPEC_FORMS, parse_points_spec
 from .experiments import add_eval_parser, format_results, request_from_args, run_evaluation
@@ -321,6 +321,7 @@ def _cmd_run(args) -> int:
     if summary.resumed_frames == -1:
         print(f"{args.out}: already holds this finished run; nothing to resume")
     print(format_table(summary))
+    print("\n".join(written_outputs(args)), end="\n" if written_outputs(args) else "")
     verdict = summary.verdict
     if verdict and not verdict.get("ok", True):
         print(f"vio-depth: {verdict['message']}", file=sys.stderr)

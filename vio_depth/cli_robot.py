@@ -132,10 +132,18 @@ def sink_factories(args) -> list:
     return out
 
 
+def written_outputs(args) -> list[str]:
+    """Lines naming the robot outputs a finished run wrote."""
+    names = [f"{args.out}/{MCAP_NAME}" if args.save_mcap else "",
+             f"{args.out}/{ROSBAG2_NAME}/" if args.save_rosbag2 else "", args.rerun_save or ""]
+    names = [n for n in names if n]
+    return [f"robot outputs: {', '.join(names)} (docs/ros.md)"] if names else []
+
+
 def cmd_inspect(args) -> int:
     print(format_inspection(inspect_bag(args.bag, bag_settings(args))))
     return 0
 
 
 __all__ = ["add_input_flags", "add_inspect_parser", "add_output_flags", "bag_settings", "cmd_inspect", "input_paths",
-           "open_input", "sink_factories"]
+           "open_input", "sink_factories", "written_outputs"]

@@ -64,9 +64,9 @@ def runs(robot):
     """The ASL run and one run per bag kind; the SQLite3 bag's run also writes every robot output."""
     out = {"asl": _run(robot, "asl", "asl", "--save-npy")}
     for kind, name in BAGS.items():
-        extra = ["--save-npy", "--save-mcap", "--save-rosbag2", "--rerun-save", str(robot / "run.rrd")] \
-            if kind == "ros2" and _has_rerun() else ["--save-npy", "--save-mcap", "--save-rosbag2"] \
-            if kind == "ros2" else []
+        extra = {"ros1": ["--save-mcap"], "mcap": [],
+                 "ros2": ["--save-npy", "--save-mcap", "--save-rosbag2"] +
+                 (["--rerun-save", str(robot / "run.rrd")] if _has_rerun() else [])}[kind]
         out[kind] = _run(robot, name, kind, *extra)
     return out
 
@@ -231,6 +231,41 @@ def test_missing_rerun_is_one_line_before_anything_is_written(robot, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert rc == 1 and len(err.splitlines()) == 1 and "pip install -e '.[viz]'" in err
     assert not (tmp_path / "o").exists() and not (tmp_path / "r.rrd").exists()
+
+
+def _mcap_messages(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        return sorted((c.topic, m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages())
+
+
+def test_a_killed_run_resumes_to_the_same_mcap(robot, runs, tmp_path, capsys):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from vio_depth.run import staging_path
+    from vio_depth.run.folder import JOURNAL_NAME
+
+    out = tmp_path / "killed"
+    argv = ["run", str(robot / BAGS["ros1"]), "--out", str(out), "--disparity-dir", str(robot / "disparity"), *COMMON,
+            "--calib", str(robot / "camchain.yaml"), "--imu-calib", str(robot / "imu.yaml"), "--save-mcap"]
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-m", "vio_depth.cli", *argv], cwd=root, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(root)})
+    journal = staging_path(out) / JOURNAL_NAME
+    t0 = time.monotonic()
+    while not (journal.is_file() and journal.read_bytes().count(b'"record": "frame"') >= 8):
+        assert proc.poll() is None and time.monotonic() - t0 < 120, "the run ended before it could be killed"
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(30)
+    assert main(argv + ["--resume"]) == 0
+    assert _mcap_messages(out / "run.mcap") == _mcap_messages(runs["ros1"] / "run.mcap")
 
 
 def test_a_failed_run_leaves_no_half_written_robot_outputs(robot, tmp_path, capsys):

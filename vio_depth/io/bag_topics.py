@@ -233,6 +233,11 @@ def _needs(choice: TopicChoice | None, settings) -> tuple[str, ...]:
     calib = settings.calibration
     extrinsic = calib.camera is not None and calib.camera.T_c_i is not None
     out = []
+    if calib.camera is not None:
+        out.append(f"(uses) the camera of --calib ({calib.camera.name}{', T_cam_imu' if extrinsic else ''})"
+                   + (f" instead of {choice.camera_info}" if choice.camera_info else ""))
+    if calib.imu is not None:
+        out.append("(uses) the IMU noise model of --imu-calib")
     if not choice.camera_info and calib.camera is None:
         out.append("the camera: --calib camchain.yaml (no CameraInfo topic)")
     if choice.imu and not (extrinsic and calib.imu is not None):
@@ -266,7 +271,8 @@ def format_inspection(info: BagInspection) -> str:
                                         ("poses", info.choice.pose)) if not v]
         if missing:
             lines.append("not in the bag (or not chosen): " + ", ".join(missing))
-        lines += [f"a run needs {need}" for need in info.needs]
+        lines += [f"a run would use {n.removeprefix('(uses) ')}" if n.startswith("(uses) ") else f"a run needs {n}"
+                  for n in info.needs]
     return "\n".join(lines)
 
 
