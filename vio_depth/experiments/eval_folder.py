@@ -11,7 +11,7 @@ the first write all the more important. Refused with one line, nothing written:
   sequence folder);
 * ``--markdown`` inside an input;
 * a non-empty folder without vio-depth's evaluation marker (``vio-depth-eval.json``,
-  :mod:`vio_depth.run.marker`): a user's folder, or a run folder;
+  :mod:`vio_depth.io.marker`): a user's folder, or a run folder;
 * a folder another evaluation is writing (``flock`` on the folder while it works).
 
 A folder that carries the marker is continued: finished tasks come from its cache, the
@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Iterable
 
 from ..run.folder import OutputFolderError, check_out_path
-from ..run.marker import EVAL_MARKER, read_marker, write_marker
+from ..io.marker import EVAL_MARKER, read_marker, write_marker
 
 
 def _inside(child: Path, parent: Path) -> bool:

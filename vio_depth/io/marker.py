@@ -3,7 +3,8 @@
 vio-depth replaces or deletes a folder only when it carries vio-depth's marker: a small
 JSON file that only vio-depth writes, **first**, into every folder it creates for a run
 (``vio-depth-run.json``, in the staging folder before anything else, so it travels with the
-result into ``--out``) or an evaluation (``vio-depth-eval.json``)::
+result into ``--out``), an evaluation (``vio-depth-eval.json``) or a report
+(``vio-depth-report.json``)::
 
     {"vio_depth": "run", "marker_version": 1, "version": "0.2.0",
      "id": "5f0c...32 hex digits", "created": "2026-12-02T10:11:12Z"}
@@ -30,14 +31,16 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from .._version import __version__
-from ..io.depth_png import write_bytes_atomic
+from .depth_png import write_bytes_atomic
 
 #: marker file of a run folder (and of its staging folder)
 RUN_MARKER = "vio-depth-run.json"
 #: marker file of an evaluation folder (``vio-depth eval --out``)
 EVAL_MARKER = "vio-depth-eval.json"
+#: marker file of a report folder (``vio-depth report --to``, ``OUT/report``)
+REPORT_MARKER = "vio-depth-report.json"
 MARKER_VERSION = 1
-_NAMES = {"run": RUN_MARKER, "eval": EVAL_MARKER}
+_NAMES = {"run": RUN_MARKER, "eval": EVAL_MARKER, "report": REPORT_MARKER}
 _ID = re.compile(r"[0-9a-f]{32}")
 #: a marker is a few hundred bytes; anything larger is not one
 _MAX_MARKER_BYTES = 4096
@@ -77,4 +80,4 @@ def read_marker(folder, kind: str) -> str | None:
     return ident if isinstance(ident, str) and _ID.fullmatch(ident) else None
 
 
-__all__ = ["EVAL_MARKER", "RUN_MARKER", "marker_name", "read_marker", "write_marker"]
+__all__ = ["EVAL_MARKER", "REPORT_MARKER", "RUN_MARKER", "marker_name", "read_marker", "write_marker"]

@@ -17,6 +17,7 @@ note saying why.
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import shutil
 from dataclasses import dataclass, field
@@ -24,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vio_core.errors import VioDepthError
+from vio_core.errors import InputError, VioDepthError
 
 from ..export.colormap import ERROR_LEVELS, colormap_lut
 from ..export.exporter import resize_to_width
@@ -39,6 +40,7 @@ from ..export.preview import (
 )
 from ..export.selection import has_depth, select_frames
 from ..io.depth_png import read_depth_png, write_bytes_atomic
+from ..io.marker import REPORT_MARKER, read_marker, write_marker
 from .load import RunData, load_run
 from .plots import FIGURES, png_bytes
 from .render import Code, Image, Note, Section, Strip, Table, Text, to_html, to_markdown
@@ -71,12 +73,14 @@ def build_report(out_dir, report_dir=None, run_info: dict | None = None, name: s
             in its staging folder and passes the name of ``--out``).
 
     Raises:
-        InputError: no run folder / ``frames.jsonl``.
+        InputError: no run folder / ``frames.jsonl``, or a ``report_dir`` that holds files
+            vio-depth did not write (:func:`claim_report_dir`).
         MissingDependencyError: matplotlib is not installed (``pip install -e '.[report]'``).
     """
     run = load_run(out_dir)
     run.name = name or run.out_dir.resolve().name
     report_dir = Path(report_dir) if report_dir is not None else run.out_dir / "report"
+    claim_report_dir(report_dir)
     for sub in ("plots", "thumbs"):
         if (report_dir / sub).is_dir():
             shutil.rmtree(report_dir / sub)
@@ -107,6 +111,31 @@ def build_report(out_dir, report_dir=None, run_info: dict | None = None, name: s
     images += [im.src for s in sections for b in s.blocks if isinstance(b, Strip)
                for _, _, ims in b.columns for im in ims if im is not None]
     return ReportResult(html_path, md_path, [s.title for s in sections], omitted, images)
+
+
+def claim_report_dir(report_dir: Path) -> None:
+    """Make ``report_dir`` a report folder: refuse one that holds anything without vio-depth's
+    report marker (a report replaces its ``plots/`` and ``thumbs/`` and rewrites
+    ``index.html`` and ``report.md``: ``--to ~/Documents`` would have deleted
+    ``~/Documents/plots``), else create it and write the marker first (issue 23).
+
+    Raises:
+        InputError: a file, a link to nothing, or a non-empty folder without the marker.
+    """
+    if os.path.islink(report_dir) and not report_dir.exists():
+        raise InputError(f"{report_dir}: is a symbolic link to nothing; not usable as a report folder")
+    if report_dir.exists() and not report_dir.is_dir():
+        raise InputError(f"{report_dir}: exists and is not a folder")
+    try:
+        entries = os.listdir(report_dir) if report_dir.is_dir() else []
+        if entries and read_marker(report_dir, "report") is None:
+            raise InputError(f"{report_dir}: not empty and holds no vio-depth report (no {REPORT_MARKER} marker); "
+                             "vio-depth never replaces files it did not write (give another --to, or empty it)")
+        report_dir.mkdir(parents=True, exist_ok=True)
+        if read_marker(report_dir, "report") is None:
+            write_marker(report_dir, "report")
+    except OSError as exc:
+        raise InputError(f"{report_dir}: cannot write the report ({exc.strerror or exc})") from None
 
 
 class _Context:

@@ -19,7 +19,7 @@ Refused before anything is written (:func:`check_out_path`, :meth:`OutputFolder.
 write); a staging folder locked by a live run.
 
 **What vio-depth may delete** (issue 23): only folders that carry its marker
-(:mod:`vio_depth.run.marker`, ``vio-depth-run.json``, written first into every staging
+(:mod:`vio_depth.io.marker`, ``vio-depth-run.json``, written first into every staging
 folder): the old content of ``--out`` after the swap (its marker must still carry the id
 read when the run started), a staging folder discarded with ``--overwrite`` or left over
 from a finished swap, and the per-frame files a resume prunes inside its own staging
@@ -54,7 +54,7 @@ from typing import Iterable
 from vio_core.errors import InputError
 
 from ..io.depth_png import write_bytes_atomic
-from .marker import RUN_MARKER, read_marker, write_marker
+from ..io.marker import RUN_MARKER, read_marker, write_marker
 from .swap import aside_path, replace_folder
 
 log = logging.getLogger(__name__)
@@ -179,7 +179,7 @@ def staging_path(out) -> Path:
 
 def is_run_folder(path) -> bool:
     """True when ``path`` holds a vio-depth run: it carries vio-depth's run marker
-    (:mod:`vio_depth.run.marker`). A ``frames.jsonl`` alone proves nothing (issue 23)."""
+    (:mod:`vio_depth.io.marker`). A ``frames.jsonl`` alone proves nothing (issue 23)."""
     return read_marker(path, "run") is not None
 
 

@@ -6,7 +6,7 @@ what was checked (issue 23).
 ``renameat2(RENAME_EXCHANGE)``), else ``target`` is renamed aside first
 (``.<name>.vio-depth-old``). The old content is deleted only when it is still what the
 caller checked before the run: an empty folder, or the run whose marker
-(:mod:`vio_depth.run.marker`) carries ``marker_id``.
+(:mod:`vio_depth.io.marker`) carries ``marker_id``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
-from .marker import read_marker
+from ..io.marker import read_marker
 
 log = logging.getLogger(__name__)
 
