@@ -120,7 +120,8 @@ def main() -> int:
     for kind, result, growth in rows:
         for label in ("short", "long"):
             r = result[label]
-            extra = "baseline" if label == "short" else f"{growth:+.1f} MB ({r['peak_mb'] / result['short']['peak_mb']:.3f} x)"
+            ratio = r["peak_mb"] / result["short"]["peak_mb"]
+            extra = "baseline" if label == "short" else f"{growth:+.1f} MB ({ratio:.3f} x)"
             print(f"{kind:6s} {r['frames']:6d} {r['imu']:6d} {r['size_mb']:7.0f} {r['open_s']:7.2f} "
                   f"{r['read_ms_per_frame']:11.2f} {r['peak_mb']:11.1f}  {extra}")
     print(f"memory flat (long - short <= {args.max_growth_mb:g} MB for every kind): {'yes' if ok else 'NO'}")

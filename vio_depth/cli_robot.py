@@ -23,7 +23,7 @@ from .export.rosout import RosOutputSettings, RosRunWriter
 from .io import BagSettings, Sequence, apply_calibration, open_bag, open_sequence, read_calibration
 from .io.bag import POSE_FRAMES, detect_bag
 from .io.bag_topics import format_inspection, inspect_bag
-from .viz import RerunSink
+from .viz import RerunSink, viewer_executable
 
 #: flags that only apply to ROS bags (argparse dest -> flag)
 _BAG_FLAGS = {"image_topic": "--image-topic", "imu_topic": "--imu-topic", "camera_info_topic": "--camera-info-topic",
@@ -125,6 +125,9 @@ def sink_factories(args) -> list:
     if args.rerun is not None or args.rerun_save:
         if importlib.util.find_spec("rerun") is None:
             raise MissingDependencyError("rerun-sdk", "viz", "the Rerun view (--rerun, --rerun-save)")
+        if args.rerun == "" and viewer_executable() is None:
+            raise MissingDependencyError("rerun-sdk", "viz", "spawning a Rerun viewer (--rerun; no `rerun` executable "
+                                         "found; or give --rerun URL of a running viewer)")
         if args.rerun_save and not Path(args.rerun_save).resolve().parent.is_dir():
             raise InputError(f"--rerun-save {args.rerun_save}: its folder does not exist")
         view = dict(spawn=args.rerun == "", connect=args.rerun or None, save=args.rerun_save)

@@ -160,7 +160,8 @@ def _pick(catalogue: BagTopics, role: str, given: str | None, path, required: bo
             raise InputError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage); topics: {all_topics}")
         return None
     names = ", ".join(t.name for t in candidates)
-    raise InputError(f"{path}: several topics could serve as {role.replace('_', ' ')} ({names}): choose one with {flag}")
+    what = role.replace("_", " ")
+    raise InputError(f"{path}: several topics could serve as {what} ({names}): choose one with {flag}")
 
 
 def choose_topics(catalogue: BagTopics, settings, path) -> TopicChoice:

@@ -178,8 +178,8 @@ class _Block:
 
     def transform(self, key: str) -> np.ndarray:
         value = self.require(key)
-        rows = value if isinstance(value, list) and len(value) == 4 and all(isinstance(r, list) for r in value) else None
-        if rows is None:
+        rows = value if isinstance(value, list) and len(value) == 4 else None
+        if rows is None or not all(isinstance(r, list) for r in rows):
             raise self.error(key, "expected 4 rows of 4 numbers")
         T = np.stack([self.numbers(key, (4,), r) for r in rows])
         try:
@@ -216,7 +216,8 @@ def _read_camera(block: _Block) -> KalibrCamera:
     if "timeshift_cam_imu" in block.data:
         shift = _float(block.data["timeshift_cam_imu"])
         if shift is None:
-            raise block.error("timeshift_cam_imu", f"must be a number of seconds, got {block.data['timeshift_cam_imu']!r}")
+            raise block.error("timeshift_cam_imu",
+                              f"must be a number of seconds, got {block.data['timeshift_cam_imu']!r}")
     topic = block.data.get("rostopic")
     return KalibrCamera(block.name, camera, T_c_i, shift, None if topic is None else str(topic))
 

@@ -12,6 +12,6 @@ module             job
 Foxglove and RViz read the run's MCAP / ROS 2 output instead (:mod:`vio_depth.export.rosout`).
 """
 
-from .rerun_view import POINT_COLOUR_RANGE, RerunSink, RerunView, blueprint, frame_pose
+from .rerun_view import POINT_COLOUR_RANGE, RerunSink, RerunView, blueprint, frame_pose, viewer_executable
 
-__all__ = ["POINT_COLOUR_RANGE", "RerunSink", "RerunView", "blueprint", "frame_pose"]
+__all__ = ["POINT_COLOUR_RANGE", "RerunSink", "RerunView", "blueprint", "frame_pose", "viewer_executable"]

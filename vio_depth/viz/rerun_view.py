@@ -30,8 +30,11 @@ is an optional dependency (``pip install -e '.[viz]'``), imported when a view is
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +63,29 @@ def _rerun():
     except ImportError:
         raise MissingDependencyError("rerun-sdk", "viz", "the Rerun view (--rerun, --rerun-save)") from None
     return rerun
+
+
+def viewer_executable() -> str | None:
+    """The Rerun viewer ``--rerun`` spawns: ``rerun`` on PATH, or the one ``rerun-sdk``
+    installed beside this Python (a virtual environment that is not activated); None if neither."""
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() and os.access(beside, os.X_OK) else None
+
+
+@contextlib.contextmanager
+def _viewer_on_path():
+    """PATH with the viewer's folder first while Rerun looks the viewer up by name."""
+    exe = viewer_executable()
+    before = os.environ.get("PATH", "")
+    if exe is not None:
+        os.environ["PATH"] = os.pathsep.join([str(Path(exe).parent), before])
+    try:
+        yield
+    finally:
+        os.environ["PATH"] = before
 
 
 def blueprint(rr):
@@ -110,7 +136,8 @@ class RerunView:
             if connect:
                 self.rec.connect_grpc(connect)
             elif spawn:
-                self.rec.spawn()
+                with _viewer_on_path():
+                    self.rec.spawn()
         except Exception as exc:  # no viewer binary, a port in use, an unwritable file
             raise InputError(f"Rerun: {' '.join(str(exc).split())}") from None
         self.rec.send_blueprint(blueprint(rr))
@@ -239,4 +266,5 @@ class RerunSink:
             self.view.save_path.unlink(missing_ok=True)
 
 
-__all__ = ["MAX_TRAJECTORY_POINTS", "POINT_COLOUR_RANGE", "RerunSink", "RerunView", "blueprint", "frame_pose"]
+__all__ = ["MAX_TRAJECTORY_POINTS", "POINT_COLOUR_RANGE", "RerunSink", "RerunView", "blueprint", "frame_pose",
+           "viewer_executable"]

@@ -159,7 +159,7 @@ def test_malformed_camchain_names_file_and_line(tmp_path, edit, message, line):
 
 
 def test_imu_yaml_needs_positive_densities_and_the_right_topic_is_required(tmp_path):
-    (tmp_path / "i.yaml").write_text(IMU_YAML.replace("gyroscope_noise_density: 1.6968e-04", "gyroscope_noise_density: 0"))
+    (tmp_path / "i.yaml").write_text(IMU_YAML.replace("noise_density: 1.6968e-04", "noise_density: 0"))
     with pytest.raises(SequenceFormatError, match="gyroscope_noise_density: must be a positive number") as info:
         read_imu_yaml(tmp_path / "i.yaml")
     assert info.value.line == 5
