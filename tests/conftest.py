@@ -1,0 +1,98 @@
+"""The guard that proves vio-depth never changes a file it did not create (issue 23).
+
+For the safety tests (``tests/robustness/``, ``tests/vio_depth/test_cli_safety.py``,
+``tests/vio_depth/run/test_output_folder.py``) every ``vio-depth`` command run in-process is
+wrapped: the test's folder (``tmp_path``: its input sequences and the "user's" folders) is
+walked before and after the command and every file hashed. A file that existed before must
+be there afterwards with the same bytes, unless it lay in a folder that carried one of
+vio-depth's markers before the command (a run, evaluation or report folder vio-depth wrote,
+or a staging folder of its own: those it may replace). New files are allowed (outputs).
+
+The bundled samples (``sample_sequences/``, read by many tests) are hashed once before the
+whole session and compared at its end.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GUARDED = ("tests/robustness/", "tests/vio_depth/test_cli_safety.py", "tests/vio_depth/run/test_output_folder.py")
+MARKER_KINDS = ("run", "eval", "report")
+
+
+def snapshot(*roots: Path) -> tuple[dict[str, str], list[Path]]:
+    """``({path: hash}, [folders carrying a vio-depth marker])`` of every file under ``roots``
+    (links are recorded by their target, never followed)."""
+    from vio_depth.io.marker import read_marker
+
+    files: dict[str, str] = {}
+    owned: list[Path] = []
+    for root in roots:
+        for dirpath, _, filenames in os.walk(root):
+            d = Path(dirpath)
+            if any(read_marker(d, kind) is not None for kind in MARKER_KINDS):
+                owned.append(d)
+            for name in filenames:
+                p = d / name
+                try:
+                    if p.is_symlink():
+                        files[str(p)] = "link:" + os.readlink(p)
+                    else:
+                        files[str(p)] = hashlib.sha1(p.read_bytes()).hexdigest()
+                except OSError:
+                    files[str(p)] = "unreadable"
+    return files, owned
+
+
+def changed_user_files(before: tuple[dict[str, str], list[Path]], after: tuple[dict[str, str], list[Path]]) -> list[str]:
+    """Files of ``before`` outside its vio-depth folders that ``after`` lacks or holds changed."""
+    files, owned = before
+    now = after[0]
+    out = []
+    for path, h in files.items():
+        if any(Path(path) == o or o in Path(path).parents for o in owned):
+            continue
+        if now.get(path) != h:
+            out.append(f"{path}: {'deleted' if path not in now else 'modified'}")
+    return out
+
+
+@pytest.fixture(autouse=True)
+def _guard_user_files(request, monkeypatch):
+    """Wrap ``vio_depth.cli._main`` in the safety tests (see the module docstring)."""
+    nodeid = request.node.nodeid.replace("\\", "/")
+    if not any(g in nodeid for g in GUARDED):
+        yield
+        return
+    import vio_depth.cli as cli
+
+    tmp = request.getfixturevalue("tmp_path")
+    original = cli._main
+
+    def guarded(args):
+        before = snapshot(tmp)
+        try:
+            return original(args)
+        finally:
+            damage = changed_user_files(before, snapshot(tmp))
+            assert not damage, f"vio-depth {args.command} changed files it did not create: {damage[:5]}"
+
+    monkeypatch.setattr(cli, "_main", guarded)
+    yield
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _samples_unchanged():
+    """The bundled samples are inputs of many tests: byte-identical at the end of the session."""
+    samples = ROOT / "sample_sequences"
+    before = snapshot(samples)[0] if samples.is_dir() else {}
+    yield
+    if before:
+        after = snapshot(samples)[0]
+        damage = [p for p, h in before.items() if after.get(p) != h]
+        assert not damage, f"the bundled samples changed during the tests: {damage[:5]}"
