@@ -122,6 +122,9 @@ def sink_factories(args) -> list:
         out.append(lambda staging: RosRunWriter(staging / MCAP_NAME, "mcap", settings))
     if args.save_rosbag2:
         out.append(lambda staging: RosRunWriter(staging / ROSBAG2_NAME, "rosbag2", settings))
+    if args.rerun and "://" not in args.rerun:
+        raise SettingsError(f"--rerun {args.rerun!r}: expected a viewer URL such as rerun+http://127.0.0.1:9876/proxy "
+                            "(--rerun alone spawns a viewer; put it after the sequence)")
     if args.rerun is not None or args.rerun_save:
         if importlib.util.find_spec("rerun") is None:
             raise MissingDependencyError("rerun-sdk", "viz", "the Rerun view (--rerun, --rerun-save)")

@@ -231,6 +231,10 @@ def test_missing_rerun_is_one_line_before_anything_is_written(robot, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert rc == 1 and len(err.splitlines()) == 1 and "pip install -e '.[viz]'" in err
     assert not (tmp_path / "o").exists() and not (tmp_path / "r.rrd").exists()
+    monkeypatch.undo()
+    rc = main(["run", str(robot / "asl"), "--out", str(tmp_path / "o"), "--rerun", "localhost"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and "expected a viewer URL such as rerun+http://" in err and not (tmp_path / "o").exists()
 
 
 def _mcap_messages(path):

@@ -215,6 +215,9 @@ class BagSequence(Sequence):
         if calib.camera is not None:
             camera = calib.camera.camera
             source = f"--calib {calib.camera.name}"
+            if calib.camera.rostopic and calib.camera.rostopic != topics.image:
+                log.warning("%s: --calib %s was calibrated on %s, the run reads %s", path, calib.camera.name,
+                            calib.camera.rostopic, topics.image)
         elif info_msg is not None:
             rectified = self.settings.rectified
             rectified = "rect" in topics.image if rectified is None else rectified
