@@ -168,3 +168,16 @@ def test_imu_yaml_needs_positive_densities_and_the_right_topic_is_required(tmp_p
         read_camchain(tmp_path / "c.yaml", topic="/cam9/image")
     with pytest.raises(SequenceFormatError, match="calibration file not found"):
         read_camchain(tmp_path / "missing.yaml")
+
+
+def test_cli_applies_calib_to_a_folder_input(tmp_path, capsys):
+    pytest.importorskip("skimage")
+    from vio_depth.cli import main
+    from vio_depth.simulate.asl import generate_asl_sample
+
+    root = generate_asl_sample(tmp_path / "asl", n_frames=3, scale=0.25)
+    write_camchain(tmp_path / "small.yaml", Camera(64, 48, 50.0, 50.0, 31.5, 23.5))
+    rc = main(["run", str(root), "--out", str(tmp_path / "o"), "--calib", str(tmp_path / "small.yaml")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and len(err.splitlines()) == 1 and "--calib: cam0 is 64x48 but the images" in err
+    assert not (tmp_path / "o").exists()
