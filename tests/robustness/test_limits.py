@@ -7,6 +7,7 @@ reader: text tables, JSON, TOML, image headers, positions, IMU calibration, OXTS
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -29,7 +30,8 @@ from vio_depth.frame import imu_calibration_problem
 from vio_depth.io.kitti_oxts import read_oxts_packet
 from vio_depth.io.tables import MAX_POSITION_M, read_tum_trajectory
 
-EXAMPLES = settings(max_examples=200, deadline=None, derandomize=True,
+EXAMPLES = settings(max_examples=int(os.environ.get("VIO_DEPTH_HYPOTHESIS_EXAMPLES", "200")), deadline=None,
+                    derandomize=not os.environ.get("VIO_DEPTH_HYPOTHESIS_RANDOM"),
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
 # JSON values whose strings hold the characters that could fool a bracket count
