@@ -306,3 +306,14 @@ def test_image_paths_never_climb_out_of_the_sequence(mini_street, tmp_path, cli,
                                                   ("2.60.0", None, False), ("2.60.0", "disabled", True)])
 def test_a_local_ray_instance_without_authentication_is_reported(version, mode, open_):
     assert bool(local_ray_problem(version, mode)) is open_
+
+
+@pytest.mark.parametrize("name", ["../../outside/scene.json", "/etc/scene.json"])
+def test_ddad_file_names_never_leave_the_dataset_folder(tmp_path, name):
+    from vio_core.errors import SequenceFormatError
+    from vio_depth.io.ddad import DGP_SPLITS, ddad_split_scenes
+
+    ds = tmp_path / "ddad.json"
+    ds.write_text(json.dumps({"scene_splits": {str(DGP_SPLITS["val"]): {"filenames": [name]}}}))
+    with pytest.raises(SequenceFormatError, match="points outside the dataset folder"):
+        ddad_split_scenes(ds, "val")
