@@ -12,6 +12,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from vio_core.errors import InputError
+from vio_core.limits import read_json_file
+
 from ..io.depth_png import write_bytes_atomic
 from ..report import Code, Image, Note, Section, Table, Text, to_markdown
 from .figures import figure_study, figure_variants
@@ -116,6 +119,28 @@ def _study_section(folder: Path, fig_dir: Path, rel: str, names: list[str], n_fr
     return sec if found else None
 
 
+def read_eval_meta(folder: Path) -> dict:
+    """The ``eval.json`` of an evaluation folder (``--compare-with``), size and nesting checked
+    and the fields the documents use validated.
+
+    Raises:
+        InputError: missing, unreadable, too large, or without those fields (names the file).
+    """
+    path = Path(folder) / "eval.json"
+    try:
+        meta = read_json_file(path, what="eval.json")
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read the evaluation's eval.json ({exc})") from None
+    ok = (isinstance(meta, dict) and isinstance(meta.get("executor"), dict)
+          and isinstance(meta["executor"].get("kind"), str)
+          and all(isinstance(meta.get(k), (int, float)) and not isinstance(meta.get(k), bool)
+                  for k in ("wall_seconds", "tasks", "tasks_cached")))
+    if not ok:
+        raise InputError(f"{path}: not the eval.json of a vio-depth evaluation (executor, wall_seconds, tasks, "
+                         "tasks_cached expected)")
+    return meta
+
+
 def write_document(folder, doc_path, *, compare_with=None) -> Path:
     """Write the Markdown document of the evaluation in ``folder`` to ``doc_path`` (figures beside it).
 
@@ -146,7 +171,7 @@ def write_document(folder, doc_path, *, compare_with=None) -> Path:
     times = [["this run", meta["executor"]["kind"], meta["executor"]["workers"], f"{meta['wall_seconds']:.0f} s",
               meta["tasks"], meta["tasks_cached"]]]
     if compare_with is not None:
-        other = json.loads((Path(compare_with) / "eval.json").read_text())
+        other = read_eval_meta(Path(compare_with))
         cmp = compare_evaluations(folder, compare_with)
         times.append(["compared run", other["executor"]["kind"], other["executor"]["workers"],
                       f"{other['wall_seconds']:.0f} s", other["tasks"], other["tasks_cached"]])

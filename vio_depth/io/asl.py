@@ -55,6 +55,7 @@ from vio_core.camera import Camera
 from vio_core.checks import check_transform
 from vio_core.errors import InputError, SequenceFormatError, SettingsError
 from vio_core.geometry import invert_transform
+from vio_core.limits import MAX_TEXT_BYTES, read_limited, too_large
 
 from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
@@ -125,7 +126,13 @@ def read_sensor_yaml(path) -> tuple[dict, list[str]]:
     path = Path(path)
     if not path.is_file():
         raise SequenceFormatError(path, "sensor.yaml not found")
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    try:
+        data, size = read_limited(path, MAX_TEXT_BYTES)
+    except OSError as exc:
+        raise SequenceFormatError(path, f"cannot read: {exc.strerror or exc}") from None
+    if data is None:
+        raise SequenceFormatError(path, too_large(size, MAX_TEXT_BYTES, "a sensor.yaml"))
+    lines = data.decode("utf-8", errors="replace").splitlines()
     text = "\n".join("" if i == 0 and ln.startswith("%YAML:") else ln for i, ln in enumerate(lines))
     try:
         data = yaml.safe_load(text)

@@ -59,7 +59,7 @@ from vio_core.limits import read_json_file
 from ..frame import Frame
 from .base import Sequence, SequenceFormat, register_format
 from .images import read_rgb_image
-from .tables import MAX_POSITION_M, QUATERNION_NORM_TOLERANCE, stays_inside
+from .tables import MAX_POSITION_M, QUATERNION_NORM_TOLERANCE, inside_name
 
 #: how the LiDAR points are moved into the camera (see the module docstring)
 PROJECTIONS = ("extrinsics", "poses")
@@ -102,11 +102,9 @@ def read_json(path) -> object:
     path = Path(path)
     try:
         return read_json_file(path, what="a JSON file")
-    except OSError as exc:
-        raise SequenceFormatError(path, f"cannot read: {exc.strerror}") from None
     except json.JSONDecodeError as exc:
         raise SequenceFormatError(path, f"invalid JSON: {exc.msg} (column {exc.colno})", line=exc.lineno) from None
-    except ValueError as exc:  # too large, nested too deeply, not UTF-8
+    except (OSError, ValueError) as exc:  # unreadable, too large, nested too deeply, not UTF-8
         raise SequenceFormatError(path, f"cannot read JSON: {exc}") from None
 
 
@@ -316,15 +314,8 @@ def ddad_split_scenes(dataset_json, split: str = "val") -> list[Path]:
     files = _get(splits.get(str(DGP_SPLITS[split]), {}), "filenames", [])
     if not files:
         raise SequenceFormatError(path, f"no scenes in split {split!r} (scene_splits key {DGP_SPLITS[split]})")
-    return [path.parent / _inside_file(f, path, "scene_splits") for f in files]
+    return [path.parent / inside_name(f, path, "scene_splits") for f in files]
 
-
-def _inside_file(name, path: Path, where: str) -> str:
-    """``name``, a file path relative to the dataset folder that never leaves it (no absolute
-    path, no ``..`` above the folder; docs/safety.md, "Security")."""
-    if not isinstance(name, str) or not stays_inside(name):
-        raise SequenceFormatError(path, f"{where}: file name {name!r} points outside the dataset folder")
-    return name
 
 
 def _scene_json(path: Path) -> Path:
@@ -438,7 +429,7 @@ class DdadSequence(Sequence):
         image = _get(_get(cam, "datum", {}), "image")
         if not isinstance(image, dict):
             raise SequenceFormatError(scene_json, f"{where}: {self.settings.camera} datum has no 'image'")
-        filename = _inside_file(_require(image, "filename", scene_json, where), scene_json, where)
+        filename = inside_name(_require(image, "filename", scene_json, where), scene_json, where)
         w, h = int(_number(image, "width", scene_json, where)), int(_number(image, "height", scene_json, where))
         if w <= 0 or h <= 0:
             raise SequenceFormatError(scene_json, f"{where}: image size must be positive, got {w}x{h}")
@@ -453,7 +444,7 @@ class DdadSequence(Sequence):
             lwhere = f"datum {_get(lidar, 'key')!r}"
             if not isinstance(pc, dict):
                 raise SequenceFormatError(scene_json, f"{lwhere}: {self.settings.lidar} datum has no 'point_cloud'")
-            lidar_path = folder / _inside_file(_require(pc, "filename", scene_json, lwhere), scene_json, lwhere)
+            lidar_path = folder / inside_name(_require(pc, "filename", scene_json, lwhere), scene_json, lwhere)
             fmt = tuple(_get(pc, "point_format", []) or [])
             T_w_l = parse_pose(_get(pc, "pose"), scene_json, f"{lwhere} pose")
         return _DdadFrame(Path(filename).stem, folder / filename, stamp, T_w_c, str(calib_key), lidar_path, fmt, T_w_l)

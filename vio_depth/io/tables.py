@@ -156,6 +156,14 @@ def stays_inside(relative: str) -> bool:
     return norm != ".." and not norm.startswith(".." + os.sep)
 
 
+def inside_name(name, path, where: str) -> str:
+    """``name`` (read from the file ``path``, at ``where``) when it is a relative path that stays
+    inside its base folder (:func:`stays_inside`), else :class:`SequenceFormatError`."""
+    if not isinstance(name, str) or not stays_inside(name):
+        raise SequenceFormatError(path, f"{where}: file name {name!r} points outside the dataset folder")
+    return name
+
+
 def read_numeric_table(path, ncols: int, what: str) -> tuple[np.ndarray, np.ndarray]:
     """``(values (N, ncols) float64, line numbers (N,))`` of a purely numeric table."""
     table = read_text_table(path, what, columns=ncols)

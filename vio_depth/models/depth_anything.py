@@ -28,7 +28,6 @@ torch, transformers and onnxruntime are imported lazily; a missing one raises
 from __future__ import annotations
 
 import contextlib
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +37,7 @@ import numpy as np
 from vio_core.checks import check_image
 from vio_core.environment import environ
 from vio_core.errors import InputError, MissingDependencyError, SettingsError, UnknownNameError
+from vio_core.limits import read_json_file
 
 from .original_checkpoint import (
     DepthAnythingArchitecture,
@@ -294,8 +294,8 @@ def _load_transformers_folder(path: Path, settings: DepthAnythingSettings) -> De
     if not config_file.is_file():
         raise InputError(f"{path}: not a transformers model folder (no config.json)")
     try:
-        config = json.loads(config_file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        config = read_json_file(config_file, what="a model config.json")  # size and nesting checked first
+    except (OSError, ValueError) as exc:
         raise InputError(f"{config_file}: cannot read the model config ({exc})") from None
     if not isinstance(config, dict) or config.get("model_type") != "depth_anything":
         found = config.get("model_type") if isinstance(config, dict) else None
