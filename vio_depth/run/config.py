@@ -123,7 +123,8 @@ def load_config(path, pipeline: PipelineSettings | None = None,
         raise InputError(f"{path}: is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read config file ({exc})") from None
+    data = toml_loads(text, str(path))  # its errors name the file
     try:
-        return config_from_dict(toml_loads(text, str(path)), pipeline, run)
+        return config_from_dict(data, pipeline, run)
     except SettingsError as exc:
         raise SettingsError(f"{path}: {exc}") from None
