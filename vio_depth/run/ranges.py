@@ -22,7 +22,7 @@ import dataclasses
 import types
 import typing
 
-from vio_core.ranges import Interval, check_ranges, numeric_fields
+from vio_core.ranges import Interval, check_ranges
 
 from ..pipeline import PRESET_FAMILIES, PipelineSettings
 from .config import RunSettings
