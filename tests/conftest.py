@@ -49,7 +49,10 @@ def snapshot(*roots: Path) -> tuple[dict[str, str], list[Path]]:
     return files, owned
 
 
-def changed_user_files(before: tuple[dict[str, str], list[Path]], after: tuple[dict[str, str], list[Path]]) -> list[str]:
+Snapshot = tuple[dict[str, str], list[Path]]
+
+
+def changed_user_files(before: Snapshot, after: Snapshot) -> list[str]:
     """Files of ``before`` outside its vio-depth folders that ``after`` lacks or holds changed."""
     files, owned = before
     now = after[0]

@@ -108,7 +108,8 @@ def _load_registered_depth(path, depth_camera: Camera, colour_camera: Camera, T_
 def _read_pose(path: Path) -> np.ndarray:
     T = read_matrix(path, (4, 4), "4x4 camera-to-world pose")
     if not np.all(np.abs(T[:3, 3]) <= MAX_POSITION_M):
-        raise SequenceFormatError(path, f"position {T[:3, 3].tolist()} m is beyond the plausible {MAX_POSITION_M:.0e} m")
+        raise SequenceFormatError(path, f"position {T[:3, 3].tolist()} m is beyond the plausible "
+                                        f"{MAX_POSITION_M:.0e} m")
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
         raise SequenceFormatError(path, f"last row must be 0 0 0 1, got {T[3].tolist()}")
     R = T[:3, :3]
