@@ -68,10 +68,14 @@ class FrameStream:
         imu_calibration: for the ``imu`` and ``vio`` pose sources: an
             :class:`~vio_depth.frame.ImuData` whose ``T_c_i``, noise densities and gravity
             are used (its samples are ignored).
+        pose_kind: what the pushed ``T_w_c`` are (a
+            :data:`~vio_depth.poses.POSE_UNCERTAINTY_PRESETS` name: ``mocap``, ``ins``,
+            ``headset``, ``kinectfusion``; ``exact`` for rendered poses), for the ``gt``
+            source's stated uncertainty when ``settings.poses.uncertainty`` names none.
     """
 
     def __init__(self, camera: Camera, settings: PipelineSettings | None = None, *,
-                 imu_calibration: ImuData | None = None):
+                 imu_calibration: ImuData | None = None, pose_kind: str = "exact"):
         settings = PipelineSettings() if settings is None else settings
         if not isinstance(camera, Camera):
             raise InputError(f"camera must be a vio_core.Camera, got {type(camera).__name__}")
@@ -94,7 +98,7 @@ class FrameStream:
             else:
                 pose_source = _LazyImuPoses(self)
         else:
-            pose_source = GroundTruthPoses(settings.poses)
+            pose_source = GroundTruthPoses(settings.poses, pose_kind)
         self.pipeline = Pipeline(settings, pose_source, self._disparity, matcher=self._matcher)
 
     @property

@@ -9,6 +9,7 @@ module             job
 ``preintegration`` gtsam IMU preintegration, the bias/velocity window fit
 ``imu``            ``imu``: :class:`ImuPoseSource`
 ``static_init``    still interval, roll/pitch and gyroscope bias from the IMU alone
+``uncertainty``    :class:`PoseUncertainty`: what a sequence's poses get wrong, presets by kind
 ``vio_settings``   :class:`VioSettings` of the ``vio`` source (:mod:`vio_depth.vio`)
 ``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`, :func:`register_pose_source`
 =================  ===========================================================================
@@ -30,10 +31,15 @@ from .preintegration import (
 )
 from .registry import POSE_PRESETS, PoseSettings, create_pose_source, register_pose_source
 from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
+from .uncertainty import POSE_UNCERTAINTY_PRESETS, FrameTwist, PoseUncertainty, camera_twist
 from .vio_settings import VioInitSettings, VioSettings
 
 __all__ = [
     "POSE_PRESETS",
+    "POSE_UNCERTAINTY_PRESETS",
+    "FrameTwist",
+    "PoseUncertainty",
+    "camera_twist",
     "FramePose",
     "GroundTruthPoseSettings",
     "GroundTruthPoses",

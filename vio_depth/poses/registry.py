@@ -69,4 +69,4 @@ def create_pose_source(settings: PoseSettings | str, sequence=None, matcher: Mat
         return factory(settings, sequence, matcher)
     if isinstance(settings, VioSettings):
         raise InputError("the vio pose source is not available: import vio_depth (it registers vio_depth.vio)")
-    return GroundTruthPoses(settings)
+    return GroundTruthPoses(settings, "exact" if sequence is None else sequence.pose_kind)
