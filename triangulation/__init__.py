@@ -1,9 +1,11 @@
-"""Triangulation with known metric poses: two views (``triangulate``) and N-view tracks
-with pose uncertainty (``multiview``).
+"""Triangulation with known metric poses: two views (``triangulate``), N-view tracks with
+pose uncertainty (``multiview``), whether the images agree with a stated pose
+(``consistency``) and how precise a pair's points would be (``precision``).
 
 A leaf layer: it imports only :mod:`vio_core` (and numpy, scipy).
 """
 
+from .consistency import ConsistencySettings, PoseConsistency, PoseInflation, pose_consistency
 from .multiview import (
     MultiviewPoints,
     MultiviewSettings,
@@ -11,6 +13,7 @@ from .multiview import (
     depth_in_view,
     triangulate_tracks,
 )
+from .precision import depth_pose_jacobian, predicted_depth_error
 from .triangulate import (
     TRIANGULATION_PRESETS,
     PointStatus,
@@ -24,10 +27,16 @@ from .triangulate import (
 
 __all__ = [
     "TRIANGULATION_PRESETS",
+    "ConsistencySettings",
     "MultiviewPoints",
     "MultiviewSettings",
+    "PoseConsistency",
+    "PoseInflation",
     "TrackStatus",
     "depth_in_view",
+    "depth_pose_jacobian",
+    "pose_consistency",
+    "predicted_depth_error",
     "triangulate_tracks",
     "PointStatus",
     "TriangulatedPoints",

@@ -150,6 +150,10 @@ class TriangulatedPoints:
         reprojection_px: (N,) ideal pixels, reprojection error, max over the two views.
         confidence: (N,) matching confidence in [0, 1] (ones when the matcher gave none).
         status: (N,) uint8 :class:`PointStatus` values.
+        depth_pose_jacobian: (N, 6) metres per (rad, m): d depth / d xi of the relative
+            pose's right perturbation (rotation first), or None when the pose was taken as
+            exact. The pose error is shared by every point of the pair: the rescaler needs
+            these rows (not only ``sigma_depth``) to know that it does not average out.
     """
 
     points_cur: np.ndarray
@@ -161,6 +165,7 @@ class TriangulatedPoints:
     reprojection_px: np.ndarray
     confidence: np.ndarray
     status: np.ndarray
+    depth_pose_jacobian: np.ndarray | None = None
 
     def __post_init__(self):
         p = check_array("points_cur", self.points_cur, (None, 3))
@@ -169,6 +174,8 @@ class TriangulatedPoints:
         for name in ("depth", "sigma_depth", "angle_deg", "sampson_px", "reprojection_px", "confidence"):
             check_array(name, getattr(self, name), (n,))
         check_array("status", self.status, (n,), dtype="int")
+        if self.depth_pose_jacobian is not None:
+            check_array("depth_pose_jacobian", self.depth_pose_jacobian, (n, 6))
 
     def __len__(self) -> int:
         return len(self.depth)
@@ -191,6 +198,7 @@ class TriangulatedPoints:
         return TriangulatedPoints(
             self.points_cur[m], self.uv[m], self.depth[m], self.sigma_depth[m], self.angle_deg[m],
             self.sampson_px[m], self.reprojection_px[m], self.confidence[m], self.status[m],
+            None if self.depth_pose_jacobian is None else self.depth_pose_jacobian[m],
         )
 
     def status_counts(self) -> dict[str, int]:
@@ -432,10 +440,13 @@ def triangulate_pair(
     if settings.pixel_sigma_px > 0:
         J_px = _depth_jacobian_pixels(ic, ir, K_cur_inv, K_ref_inv, R, t)
         var = var + settings.pixel_sigma_px**2 * np.sum(J_px**2, axis=1)
+    J_pose = None
     if cov is not None:
         J_pose = _depth_jacobian_pose(ic, ir, K_cur_inv, K_ref_inv, R, t)
         var = var + np.einsum("ni,ij,nj->n", J_pose, cov, J_pose)
+        mark(~np.all(np.isfinite(J_pose), axis=1), PointStatus.LOW_PARALLAX)
+        J_pose = np.where(np.isfinite(J_pose), J_pose, 0.0)
     sigma = np.sqrt(np.maximum(var, 0.0))
     mark(~np.isfinite(sigma), PointStatus.LOW_PARALLAX)
 
-    return TriangulatedPoints(points, uv_cur, depth, sigma, angle, sampson, reproj, conf, status)
+    return TriangulatedPoints(points, uv_cur, depth, sigma, angle, sampson, reproj, conf, status, J_pose)
