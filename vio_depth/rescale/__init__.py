@@ -10,15 +10,15 @@ module                 job
 ``affine``             the model's settings (:class:`RansacSettings`), result (:class:`AffineFit`)
 ``fit``                :func:`fit_affine` (MSAC + IRLS) and :func:`fit_scale_only`
 ``msac``               the vectorised machinery both fits share (internal)
-``depthmap``           dense metric depth and its 1-sigma from a fit
+``depthmap``           dense metric depth, its 1-sigma and the expected error from a fit
 ``temporal``           the Kalman filter across frames
 ``rescaler``           the streaming :class:`Rescaler`: fit, fallbacks, filter
 =====================  =====================================================================
 """
 
 from .affine import AffineFit, FitStatus, RansacSettings, metric_disparity_sigma
-from .depthmap import depth_sigma_map, metric_depth, predicted_relative_error
-from .fit import fit_affine, fit_scale_only
+from .depthmap import depth_sigma_map, expected_relative_error, metric_depth, predicted_relative_error
+from .fit import fit_affine, fit_scale_only, shared_depth_errors
 from .rescaler import (
     RESCALER_PRESETS,
     FitSource,
@@ -42,10 +42,12 @@ __all__ = [
     "Rescaler",
     "RescalerSettings",
     "depth_sigma_map",
+    "expected_relative_error",
     "fit_affine",
     "fit_scale_only",
     "metric_depth",
     "metric_disparity_sigma",
     "predicted_relative_error",
     "sample_bilinear",
+    "shared_depth_errors",
 ]

@@ -123,7 +123,8 @@ class FitStatus(str, enum.Enum):
     Checked in this order: ``TOO_FEW_POINTS`` (fewer than ``min_points`` valid points),
     ``ILL_CONDITIONED`` (targets of all points nearly equal), ``NO_CONSENSUS`` (no
     hypothesis with alpha > 0, or too few inliers), ``ILL_CONDITIONED`` (inliers' spread
-    too narrow), ``OK``. Fallback stages are :class:`~vio_depth.rescale.rescaler.FitSource` of the :class:`Rescaler`.
+    too narrow), ``NO_CONSENSUS`` (R^2 <= 0: the line explains none of the inliers'
+    spread), ``OK``. Fallback stages are :class:`~vio_depth.rescale.rescaler.FitSource` of the :class:`Rescaler`.
     """
 
     OK = "ok"
@@ -158,6 +159,14 @@ class AffineFit:
         iterations: hypotheses drawn.
         n_excluded: input points excluded before fitting (non-finite ``d`` or depth,
             depth <= 0, non-finite or negative ``sigma_depth``, weight <= 0 or non-finite).
+        shared_covariance: (2, 2) the part of ``covariance`` that comes from errors every
+            point shares (a relative pose's error moves all its points together, so it does
+            not average out over points; :func:`~vio_depth.rescale.fit.fit_affine`'s
+            ``depth_shared``); zeros when none was given, NaN when unknown.
+        model_relative_sd: robust standard deviation (1.4826 MAD) of the inliers' relative
+            residuals ``(m - alpha*d - beta) / (alpha*d + beta)``: the disparity's own error,
+            which no rescaling removes (the oracle's), plus the points' noise -- an estimate
+            from above; NaN when unknown.
     """
 
     alpha: float
@@ -175,6 +184,8 @@ class AffineFit:
     reason: str = ""
     iterations: int = 0
     n_excluded: int = 0
+    shared_covariance: np.ndarray = field(default_factory=lambda: _NAN_COV, repr=False)
+    model_relative_sd: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -201,6 +212,7 @@ class AffineFit:
             "r2": _json_float(self.r2),
             "disparity_spread": _json_float(self.disparity_spread),
             "relative_spread": _json_float(self.relative_spread),
+            "model_relative_sd": _json_float(self.model_relative_sd),
             "fit_status": self.status.value,
             "fit_reason": self.reason,
             "iterations": self.iterations,

@@ -39,9 +39,11 @@ Per-pixel uncertainty of the metric depth follows from the (alpha, beta) covaria
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
+from vio_core.checks import check_array
 from vio_core.errors import InputError
 
 from .affine import AffineFit, FitStatus, RansacSettings
@@ -65,7 +67,8 @@ from .msac import (
 )
 
 
-def fit_affine(d, depth, sigma_depth=None, weights=None, settings: RansacSettings = RansacSettings()) -> AffineFit:
+def fit_affine(d, depth, sigma_depth=None, weights=None, settings: RansacSettings = RansacSettings(),
+               depth_shared=None) -> AffineFit:
     """Robust fit of ``1/depth = alpha * d + beta`` (alpha > 0), vectorised MSAC + LO.
 
     Hypotheses come from 2-point minimal samples (index pairs from a fixed table of
@@ -85,6 +88,13 @@ def fit_affine(d, depth, sigma_depth=None, weights=None, settings: RansacSetting
         weights: (N,) extra multiplicative weights ``c_i > 0`` (e.g. matcher confidence), or
             None. They multiply each point's MSAC cost and least-squares weight.
         settings: :class:`RansacSettings`.
+        depth_shared: (N, K) metres, or None: the points' depth sensitivities to K
+            independent unit-variance errors they share (e.g. the relative pose of the pair
+            they were triangulated with, :func:`shared_depth_errors`). ``sigma_depth`` is
+            each point's whole (marginal) uncertainty, used for the threshold and the
+            weights; these rows say which part of it moves the points together, which the
+            least squares cannot average out. Their effect on ``(alpha, beta)`` is added to
+            ``covariance`` and reported in ``shared_covariance``.
 
     Returns:
         :class:`AffineFit`; ``status`` says whether it can be used (never raises on bad data,
@@ -159,12 +169,13 @@ def fit_affine(d, depth, sigma_depth=None, weights=None, settings: RansacSetting
     beta0, alpha0 = seed_least_squares(best, best_inl, std_s, c_s)
     sd_d = math.sqrt(max(sum_dd / n - mean_d * mean_d, 0.0))
     beta_hat, alpha_hat, inl, w, sums = refine(beta0, alpha0, pts, s, False, (mean_d - sd_d, mean_d + sd_d))
-    return finish(pts, alpha_hat, beta_hat, inl, w, sums, drawn, s, note, n_params=2)
+    fit = finish(pts, alpha_hat, beta_hat, inl, w, sums, drawn, s, note, n_params=2)
+    return _with_shared(fit, pts, inl, w, depth_shared, fixed_beta=False)
 
 
 
 def fit_scale_only(d, depth, beta: float, beta_variance: float = 0.0, sigma_depth=None, weights=None,
-                   settings: RansacSettings = RansacSettings()) -> AffineFit:
+                   settings: RansacSettings = RansacSettings(), depth_shared=None) -> AffineFit:
     """Robust fit of the scale alone, ``1/depth - beta = alpha * d``, with ``beta`` known.
 
     The first fallback of the :class:`Rescaler`: ``beta`` comes from the previous good
@@ -182,6 +193,7 @@ def fit_scale_only(d, depth, beta: float, beta_variance: float = 0.0, sigma_dept
         sigma_depth: (N,) metres or None.
         weights: (N,) extra weights > 0 or None.
         settings: :class:`RansacSettings`.
+        depth_shared: (N, K) metres or None, as in :func:`fit_affine`.
 
     Returns:
         :class:`AffineFit` with ``beta`` as given.
@@ -230,5 +242,51 @@ def fit_scale_only(d, depth, beta: float, beta_variance: float = 0.0, sigma_dept
                            pts.n_input, n, pts.n_excluded, drawn)
     d_mean, d_std = float(dv.mean()), float(dv.std())
     _, alpha_hat, inl, w, sums = refine(beta, best, pts, s, True, (d_mean - d_std, d_mean + d_std))
-    return finish(pts, alpha_hat, beta, inl, w, sums, drawn, s, note, n_params=1, beta_variance=beta_variance)
+    fit = finish(pts, alpha_hat, beta, inl, w, sums, drawn, s, note, n_params=1, beta_variance=beta_variance)
+    return _with_shared(fit, pts, inl, w, depth_shared, fixed_beta=True)
+
+
+def shared_depth_errors(depth_pose_jacobian, covariance) -> np.ndarray:
+    """(N, 6) metres: depth sensitivities to six independent unit-variance errors that
+    reproduce a pose covariance: ``J L`` with ``L L^T = covariance``.
+
+    Args:
+        depth_pose_jacobian: (N, 6) metres per (rad, m), d depth / d pose (e.g.
+            :attr:`triangulation.TriangulatedPoints.depth_pose_jacobian`).
+        covariance: (6, 6) covariance of that pose (positive semi-definite).
+    """
+    J = check_array("depth_pose_jacobian", depth_pose_jacobian, (None, 6))
+    C = check_array("covariance", covariance, (6, 6), finite=True)
+    lam, V = np.linalg.eigh(0.5 * (C + C.T))
+    return J @ (V * np.sqrt(np.maximum(lam, 0.0)))
+
+
+def _with_shared(fit: AffineFit, pts, inl, w, depth_shared, fixed_beta: bool) -> AffineFit:
+    """``fit`` with the shared errors' covariance added (see :func:`fit_affine`)."""
+    if depth_shared is None or not np.isfinite(fit.covariance).all():
+        return fit
+    S = check_array("depth_shared", depth_shared, (pts.n_input, None))
+    if pts.index is not None:
+        S = S[pts.index]
+    S = np.where(np.isfinite(S), S, 0.0)[inl]
+    m = pts.m[inl]
+    G = -S * (m * m)[:, None]  # (n_in, K): d metric disparity / d shared error
+    wi = w[inl]
+    d = pts.d[inl]
+    if fixed_beta:
+        swdd = float(wi @ (d * d))
+        if not swdd > 0:
+            return fit
+        row = (wi * d) @ G / swdd  # d alpha / d error
+        shared = np.zeros((2, 2))
+        shared[0, 0] = float(row @ row)
+    else:
+        A = np.column_stack([d, np.ones_like(d)])
+        N = A.T @ (wi[:, None] * A)
+        if not np.linalg.det(N) > 0:
+            return fit
+        H = np.linalg.solve(N, (wi[:, None] * A).T)  # (2, n_in)
+        HG = H @ G
+        shared = HG @ HG.T
+    return replace(fit, covariance=fit.covariance + shared, shared_covariance=shared)
 

@@ -314,8 +314,24 @@ def finish(pts: Points, alpha: float, beta: float, inl: np.ndarray, w_pts: np.nd
         status, reason = FitStatus.ILL_CONDITIONED, (
             f"inliers span too narrow a disparity range to separate scale from shift: relative "
             f"spread {rel_spread:.3g} < min_relative_spread {s.min_relative_spread:g}")
+    elif not r2 > 0:
+        status, reason = FitStatus.NO_CONSENSUS, (
+            f"R^2 = {r2:.3g} <= 0: the line explains none of the inliers' spread of 1/depth")
     else:
         status, reason = FitStatus.OK, f"{n_in}/{n} inliers"
     return AffineFit(alpha, beta, cov, pts.full_mask(inl), n, n_in, ratio, r2, spread, rel_spread, mean_fit, status,
-                     reason + note, drawn, pts.n_excluded)
+                     reason + note, drawn, pts.n_excluded, np.zeros((2, 2)) if np.isfinite(cov).all() else _NAN_COV,
+                     model_relative_sd(pts, alpha, beta, inl))
 
+
+def model_relative_sd(pts: Points, alpha: float, beta: float, inl: np.ndarray) -> float:
+    """Robust sd (1.4826 MAD) of the inliers' relative residuals ``(m - alpha*d - beta) /
+    (alpha*d + beta)`` (see :attr:`AffineFit.model_relative_sd`); NaN with fewer than 3 inliers."""
+    if fsum(inl) < 3 or not (np.isfinite(alpha) and np.isfinite(beta)):
+        return math.nan
+    d, m = pts.d[inl], pts.m[inl]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pred = alpha * d + beta
+        rel = np.abs(m - pred) / pred
+    total = 1.4826 * float(np.median(rel))
+    return total if math.isfinite(total) else math.nan

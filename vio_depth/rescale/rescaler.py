@@ -11,7 +11,7 @@ from vio_core.errors import InputError, SettingsError
 from vio_core.settings import Presets, require_positive
 
 from .affine import AffineFit, RansacSettings
-from .depthmap import depth_sigma_map, metric_depth, predicted_relative_error
+from .depthmap import depth_sigma_map, expected_relative_error, metric_depth
 from .fit import fit_affine, fit_scale_only
 from .temporal import (
     AffineKalmanFilter,
@@ -44,32 +44,38 @@ class RescalerSettings:
             is used (the previous beta / fit is considered stale).
         temporal: :class:`vio_depth.rescale.temporal.KalmanSettings` of the (alpha, beta) filter
             (on by default), or None to use each frame's fit as is.
-        max_fallback_error: a fallback frame gets depth only while its predicted relative
-            depth error (:func:`~vio_depth.rescale.depthmap.predicted_relative_error`: the
-            median over the map of ``sigma_D / D`` from the fallback fit's covariance, which
-            grows with age by the random-walk model of ``temporal``, or of the default
-            :class:`KalmanSettings` without a filter) is at most this. 0.10: on the samples
-            and 7-Scenes (SIMULATED disparity) the fallback frames it admits measured AbsRel
-            <= 0.10; beyond it errors grow to 0.2-0.3 (docs/safety.md).
-        max_fit_error: the same bound for this frame's own fit: a fit whose predicted
-            relative depth error (from its covariance: few points, narrow spread, a poor
-            line) exceeds it does not give the frame status ``ok``; the fallbacks are tried
-            instead, and without one the frame has no depth (status ``uncertain_fit``).
-            The covariance sees the points' scatter, not a bias they share (e.g. poses
-            inconsistent with the images): docs/benchmarks.md, "Landmarks".
+        max_fit_error: the bound on the predicted rescaling error: a frame is written only
+            when the fit it would use (its own, filtered or not, or a fallback) has a
+            predicted mean relative depth error against the best rescaling of this disparity
+            (:func:`~vio_depth.rescale.depthmap.expected_relative_error` of the fit's
+            covariance, which includes the errors the points share, e.g. their pose's) of at
+            most this. A frame whose own fit exceeds it tries the fallbacks, which obey the
+            same bound; without one the frame has no depth (status ``uncertain_fit``).
+        max_fallback_error: a tighter bound for the fallbacks only, or None (the default):
+            ``max_fit_error``.
     """
 
     ransac: RansacSettings = RansacSettings()
     fallback: bool = True
     max_fallback_age: int = 10
     temporal: KalmanSettings | None = KalmanSettings()
-    max_fallback_error: float = 0.10
-    max_fit_error: float = 0.10
+    max_fit_error: float = 0.03
+    max_fallback_error: float | None = None
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
-        require_positive(self, "max_fallback_error", "max_fit_error", finite=False)  # relative errors
+        require_positive(self, "max_fit_error", finite=False)  # relative errors
+        if self.max_fallback_error is not None:
+            require_positive(self, "max_fallback_error", finite=False)
+            if self.max_fallback_error > self.max_fit_error:
+                raise SettingsError(f"RescalerSettings.max_fallback_error ({self.max_fallback_error!r}) must not "
+                                    f"exceed max_fit_error ({self.max_fit_error!r}): a fallback obeys the same bound")
+
+    @property
+    def fallback_bound(self) -> float:
+        """The bound on a fallback's predicted error."""
+        return self.max_fit_error if self.max_fallback_error is None else self.max_fallback_error
 
 
 #: Named rescaler presets (``[rescaler] preset = ...`` in a config file).
@@ -98,9 +104,13 @@ class RescaleResult:
         filtered: the filter's output for this frame when the filter is on, else None.
         age: frames between this frame and the one whose fit is used (0 = this frame).
         reason: why this stage was chosen (joined reasons of the failed stages).
-        predicted_error: the predicted relative depth error of the fit used or refused:
-            this frame's own (``RescalerSettings.max_fit_error``) or a fallback's
-            (``max_fallback_error``); None when there was no fit to judge.
+        predicted_error: the predicted mean relative depth error of the fit used or refused
+            against the best rescaling of this disparity (what the bound
+            ``RescalerSettings.max_fit_error`` judges); None when there was no fit to judge.
+        predicted_abs_rel: the same plus the disparity's own error that the fit's residuals
+            show (``AffineFit.model_relative_sd``): the predicted AbsRel against ground truth.
+        predicted_pose_error: the part of ``predicted_error`` from errors the points share
+            (their poses'), for this frame's own fit; None without such errors.
     """
 
     source: FitSource
@@ -111,6 +121,8 @@ class RescaleResult:
     age: int = 0
     reason: str = ""
     predicted_error: float | None = None
+    predicted_abs_rel: float | None = None
+    predicted_pose_error: float | None = None
 
     @property
     def has_depth(self) -> bool:
@@ -149,7 +161,8 @@ class Rescaler:
     3. ``NONE``: no metric depth for this frame (``RescaleResult.fit is None``).
 
     A fallback (1 or 2) is used only while its predicted relative depth error is at most
-    ``max_fallback_error``; otherwise the frame has no depth and the reason says why.
+    ``RescalerSettings.fallback_bound`` (``max_fit_error``); otherwise the frame has no depth and the
+    reason says why.
 
     With ``settings.temporal`` set, every OK full fit is a measurement of an
     :class:`~vio_depth.rescale.temporal.AffineKalmanFilter` (anchored at the 25 % / 75 % quantiles of
@@ -207,7 +220,7 @@ class Rescaler:
         raw = fit_affine(np.zeros(0), np.zeros(0), settings=self.settings.ransac)
         return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason=reason)
 
-    def update(self, d, depth, sigma_depth=None, weights=None, disparity_map=None) -> RescaleResult:
+    def update(self, d, depth, sigma_depth=None, weights=None, disparity_map=None, depth_shared=None) -> RescaleResult:
         """Rescale one frame (call once per frame, in order, even with no points).
 
         Args:
@@ -218,14 +231,16 @@ class Rescaler:
             disparity_map: (H, W) this frame's disparity map, or None. Used for the anchors
                 of the temporal filter and of the fallbacks
                 (:func:`~vio_depth.rescale.temporal.anchors_from_map`; without it they come
-                from the inliers' ``d``, noisier) and for the fallbacks' predicted error.
+                from the inliers' ``d``, noisier) and for the predicted errors.
+            depth_shared: (N, K) metres or None: the points' sensitivities to errors they
+                share (:func:`~vio_depth.rescale.fit.fit_affine`).
 
         Returns:
             :class:`RescaleResult`.
         """
         s = self.settings
         self._frame += 1
-        raw = fit_affine(d, depth, sigma_depth, weights, s.ransac)
+        raw = fit_affine(d, depth, sigma_depth, weights, s.ransac, depth_shared=depth_shared)
         d = np.asarray(d, dtype=np.float64)
         estimate = anchors = None
         if raw.ok:
@@ -234,7 +249,10 @@ class Rescaler:
             estimate = self._filter.step(raw if anchors is not None else None, anchors)
 
         reasons = [f"fit {raw.status.value}: {raw.reason}"]
-        own_error = None
+        own_error = own_abs_rel = None
+        pose_error = None
+        if raw.ok and np.any(raw.shared_covariance):
+            pose_error = self._predicted_error(raw, disparity_map, anchors, covariance=raw.shared_covariance)
         if raw.ok:
             used = raw
             reason = raw.reason
@@ -242,15 +260,23 @@ class Rescaler:
                 used = replace(raw, alpha=estimate.alpha, beta=estimate.beta, covariance=estimate.covariance)
                 reason = f"{raw.reason}; filter: {estimate.reason}"
             error = self._predicted_error(used, disparity_map, anchors)
+            if pose_error is not None:
+                # the filter averages frames, but not an error that consecutive frames share
+                # (the same keyframes and poses): that part of this frame's fit stays
+                error = max(error, pose_error)
+            abs_rel = self._predicted_error(used, disparity_map, anchors, extra=raw.model_relative_sd)
             if error <= s.max_fit_error:
                 self._last_ok_frame = self._frame
                 self._last_ok_fit = used
                 self._use(used, anchors, disparity_map)
                 return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason,
-                                     predicted_error=error)
-            own_error = error
-            reasons = [f"fit uncertain: predicted relative depth error {error:.3g} > max_fit_error "
-                       f"{s.max_fit_error:g}"]
+                                     predicted_error=error, predicted_abs_rel=abs_rel, predicted_pose_error=pose_error)
+            own_error, own_abs_rel = error, abs_rel
+            why = f"predicted relative depth error {error:.3g} > max_fit_error {s.max_fit_error:g}"
+            if pose_error is not None and pose_error >= 0.5 * error:
+                why += f" (the points' pose uncertainty alone: {pose_error:.3g})"
+            reasons = [f"fit uncertain: {why}"]
+        bound = s.fallback_bound
         age_ok = None if self._last_ok_frame is None else self._frame - self._last_ok_frame
         if not s.fallback:
             reasons.append("fallbacks disabled")
@@ -261,27 +287,33 @@ class Rescaler:
         else:
             prev = self._last_ok_fit
             beta_var = float(prev.covariance[1, 1]) if np.isfinite(prev.covariance[1, 1]) else 0.0
-            scale = fit_scale_only(d, depth, prev.beta, beta_var, sigma_depth, weights, s.ransac)
+            scale = fit_scale_only(d, depth, prev.beta, beta_var, sigma_depth, weights, s.ransac,
+                                   depth_shared=depth_shared)
             if scale.ok:
                 anchors = self._anchors(d, scale.inliers, disparity_map)
                 error = self._predicted_error(scale, disparity_map, anchors)
+                abs_rel = self._predicted_error(scale, disparity_map, anchors, extra=scale.model_relative_sd)
                 reasons.append(f"scale-only fit with beta of frame {self._last_ok_frame}: {scale.reason}")
-                if error <= s.max_fallback_error:
+                if error <= bound:
                     self._use(scale, anchors, disparity_map)
                     return RescaleResult(FitSource.SCALE_ONLY, scale, raw, scale_only=scale, filtered=estimate,
-                                         reason="; ".join(reasons), predicted_error=error)
-                return self._refused(raw, scale, estimate, 0, error, reasons)
+                                         reason="; ".join(reasons), predicted_error=error, predicted_abs_rel=abs_rel,
+                                         predicted_pose_error=pose_error)
+                return self._refused(raw, scale, estimate, 0, error, reasons, pose_error)
             reasons.append(f"scale-only {scale.status.value}: {scale.reason}")
             age = self._frame - self._last_used_frame
             used, how = self._carried(age, disparity_map)
             reasons.append(f"previous fit of frame {self._last_used_frame} ({age} frame(s) old) {how}")
             error = self._predicted_error(used, disparity_map, self._last_used_anchors)
-            if error <= s.max_fallback_error:
+            abs_rel = self._predicted_error(used, disparity_map, self._last_used_anchors,
+                                            extra=used.model_relative_sd)
+            if error <= bound:
                 return RescaleResult(FitSource.PREVIOUS_FIT, used, raw, scale_only=scale, filtered=estimate,
-                                     age=age, reason="; ".join(reasons), predicted_error=error)
-            return self._refused(raw, scale, estimate, age, error, reasons)
+                                     age=age, reason="; ".join(reasons), predicted_error=error,
+                                     predicted_abs_rel=abs_rel, predicted_pose_error=pose_error)
+            return self._refused(raw, scale, estimate, age, error, reasons, pose_error)
         return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason="; ".join(reasons),
-                             predicted_error=own_error)
+                             predicted_error=own_error, predicted_abs_rel=own_abs_rel, predicted_pose_error=pose_error)
 
     def _carried(self, age: int, disparity_map) -> tuple[AffineFit, str]:
         """The last used fit for this frame, and how it was obtained (for the reason)."""
@@ -296,17 +328,21 @@ class Rescaler:
             return replace(used, covariance=cov), "reused unchanged (no disparity map to carry it)"
         return used, "reused unchanged"
 
-    def _predicted_error(self, fit: AffineFit, disparity_map, anchors) -> float:
-        """Predicted relative depth error of a fallback: over the map when given, else the
-        larger one at the two anchors; ``inf`` when it cannot be predicted."""
+    def _predicted_error(self, fit: AffineFit, disparity_map, anchors, covariance=None, extra: float = 0.0) -> float:
+        """Predicted mean relative depth error of ``fit`` (with ``covariance`` instead of its
+        own when given; plus an error ``extra`` that no rescaling removes, when finite): over
+        the map when given, else at the two anchors; ``inf`` when it cannot be predicted."""
+        cov = fit.covariance if covariance is None else covariance
+        extra = float(extra) if np.isfinite(extra) else 0.0
         if disparity_map is not None:
-            return predicted_relative_error(disparity_map, fit)
+            return expected_relative_error(disparity_map, fit.alpha, fit.beta, cov, extra)
         if anchors is None:
             return float("inf")
-        return predicted_relative_error(np.asarray([anchors], dtype=np.float64), fit, max_pixels=2)
+        return expected_relative_error(np.asarray([anchors], dtype=np.float64), fit.alpha, fit.beta, cov, extra,
+                                       max_pixels=2)
 
-    def _refused(self, raw, scale, estimate, age, error, reasons) -> RescaleResult:
-        reasons.append(f"fallback refused: predicted relative depth error {error:.3g} > max_fallback_error "
-                       f"{self.settings.max_fallback_error:g}")
+    def _refused(self, raw, scale, estimate, age, error, reasons, pose_error=None) -> RescaleResult:
+        reasons.append(f"fallback refused: predicted relative depth error {error:.3g} > "
+                       f"{self.settings.fallback_bound:g}")
         return RescaleResult(FitSource.NONE, None, raw, scale_only=scale, filtered=estimate, age=age,
-                             reason="; ".join(reasons), predicted_error=error)
+                             reason="; ".join(reasons), predicted_error=error, predicted_pose_error=pose_error)

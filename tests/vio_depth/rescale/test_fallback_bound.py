@@ -1,6 +1,6 @@
 """Issue 12, case 6 (fallbacks): a frame that reuses an older fit says so, follows the
 network's renormalisation of this frame, and is written only while its predicted error
-stays within ``RescalerSettings.max_fallback_error``.
+stays within the same bound as every frame's own fit, ``RescalerSettings.max_fit_error``.
 
 The scene: a fixed metric disparity map ``q`` (a tilted plane, 2-20 m). Each frame's
 affine-invariant disparity is ``d_t = s_t * q + h_t`` with a random per-frame scale and
@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from vio_core.errors import SettingsError
-from vio_depth.rescale import FitSource, Rescaler, RescalerSettings, metric_depth, predicted_relative_error
+from vio_depth.rescale import (
+    FitSource,
+    Rescaler,
+    RescalerSettings,
+    expected_relative_error,
+    metric_depth,
+    predicted_relative_error,
+)
 
 H, W = 48, 64
 
@@ -47,20 +54,21 @@ def test_previous_fit_follows_the_renormalisation_and_stops_at_the_bound(tempora
         d_map, d, depth, sigma = _frame(rng, q, False)
         res = r.update(d, depth, sigma, disparity_map=d_map)
         if res.source == FitSource.NONE:
-            assert "predicted relative depth error" in res.reason and "max_fallback_error" in res.reason
-            assert res.predicted_error > settings.max_fallback_error
+            assert "fallback refused: predicted relative depth error" in res.reason
+            assert res.predicted_error > settings.max_fit_error
             break
         assert res.source == FitSource.PREVIOUS_FIT and "previous fit" in res.reason
         depth_map = metric_depth(d_map, res.fit)
         errors.append(float(np.nanmean(np.abs(depth_map - gt) / gt)))
         predicted.append(res.predicted_error)
         ages.append(res.age)
-        assert res.predicted_error == pytest.approx(predicted_relative_error(d_map, res.fit), rel=1e-6)
+        assert res.predicted_error == pytest.approx(
+            expected_relative_error(d_map, res.fit.alpha, res.fit.beta, res.fit.covariance), rel=1e-6)
     # the scene did not change, only the network's normalisation: the carried fit stays exact
     # (a reused alpha, beta would be off by the ratio of the per-frame scales, 0.25x-4x)
     assert max(errors) < 0.02, errors
     # the predicted error grows with age (random-walk model), and ends the fallback
-    assert predicted == sorted(predicted) and all(p <= settings.max_fallback_error for p in predicted)
+    assert predicted == sorted(predicted) and all(p <= settings.max_fit_error for p in predicted)
     assert 2 <= len(ages) < 10 and ages == list(range(1, len(ages) + 1))
 
 
@@ -69,7 +77,31 @@ def test_the_bound_is_a_validated_setting():
         RescalerSettings(max_fallback_error=0.0)
     with pytest.raises(SettingsError, match="max_fallback_error"):
         RescalerSettings(max_fallback_error=float("nan"))
-    assert RescalerSettings().max_fallback_error == 0.10
+    with pytest.raises(SettingsError, match="max_fit_error"):
+        RescalerSettings(max_fit_error=0.0)
+    # a fallback obeys the same bound as the frame's own fit, never a looser one
+    with pytest.raises(SettingsError, match="must not exceed max_fit_error"):
+        RescalerSettings(max_fit_error=0.05, max_fallback_error=0.1)
+    assert RescalerSettings().max_fallback_error is None
+    assert RescalerSettings(max_fit_error=0.05).fallback_bound == 0.05
+    assert RescalerSettings(max_fit_error=0.05, max_fallback_error=0.02).fallback_bound == 0.02
+
+
+def test_expected_relative_error_is_sqrt_2_over_pi_times_the_median_sigma():
+    from vio_depth.rescale import AffineFit, FitStatus
+
+    d = np.linspace(1.0, 3.0, 200).reshape(10, 20).astype(np.float32)
+    cov = np.diag([1e-4, 1e-6])
+    m = 0.1 * d.astype(np.float64) + 0.01
+    rel2 = (d.astype(np.float64) ** 2 * 1e-4 + 1e-6) / m**2
+    want = np.sqrt(2 / np.pi) * np.sqrt(np.median(rel2))
+    assert expected_relative_error(d, 0.1, 0.01, cov) == pytest.approx(want, rel=1e-6)
+    # an error no rescaling removes adds in quadrature, pixel by pixel
+    want = np.sqrt(2 / np.pi) * np.sqrt(np.median(rel2 + 0.02**2))
+    assert expected_relative_error(d, 0.1, 0.01, cov, 0.02) == pytest.approx(want, rel=1e-6)
+    fit = AffineFit(0.1, 0.01, np.full((2, 2), np.nan), np.zeros(0, bool), 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                    FitStatus.OK)
+    assert expected_relative_error(d, fit.alpha, fit.beta, fit.covariance) == float("inf")
 
 
 def test_predicted_relative_error_is_the_median_relative_sigma():
