@@ -40,8 +40,16 @@ class PairingSettings:
         pairs_per_frame: qualifying keyframes (newest first) a frame is matched with; their
             valid points are merged (features are cached, so an extra pair costs one
             matching and one triangulation, no extraction).
-        allow_weak_pairs: when no keyframe qualifies, pair with the one giving the largest
-            translation instead of giving up (points still face the parallax check).
+        allow_weak_pairs: when no keyframe is beyond the thresholds, pair with the one whose
+            points are predicted most precise instead of giving up.
+        max_pair_error: the deciding rule: a pair is used only when the relative depth sigma
+            predicted for the better quarter of its image (:func:`triangulation.predicted_depth_error`:
+            baseline, scene depth, pixel noise and the pose's stated uncertainty) is at most this. The
+            rotation/translation thresholds above only pre-filter (and order) the
+            candidates. A pure rotation predicts no precision at all: no pair, and the
+            reason says so.
+        expected_depth_m: scene depth assumed for that prediction until the first points
+            (then the median depth of the last frame's points is used).
     """
 
     min_rotation_deg: float = 5.0
@@ -50,6 +58,8 @@ class PairingSettings:
     buffer_size: int = 8
     pairs_per_frame: int = 2
     allow_weak_pairs: bool = True
+    max_pair_error: float = 0.25
+    expected_depth_m: float = 10.0
 
     def __post_init__(self):
         if not (0 < self.min_rotation_deg <= 180 and 0 < self.min_translation_m < math.inf):
@@ -60,14 +70,17 @@ class PairingSettings:
             raise SettingsError("keyframe_fraction must be in (0, 1]")
         if self.buffer_size < 1 or self.pairs_per_frame < 1:
             raise SettingsError("buffer_size and pairs_per_frame must be >= 1")
+        if not (0 < self.max_pair_error < math.inf and 0 < self.expected_depth_m < math.inf):
+            raise SettingsError("max_pair_error and expected_depth_m must be finite and > 0, got "
+                                f"{self.max_pair_error!r}, {self.expected_depth_m!r}")
 
 
 #: Named pairing presets. "kitti"/"ddad" are the paper's thresholds; "indoor" scales the
 #: translation threshold to room-sized scenes (depths of a few metres).
 PAIRING_PRESETS: Presets = Presets("pairing preset", {
-    "kitti": PairingSettings(min_rotation_deg=5.0, min_translation_m=1.5),
-    "ddad": PairingSettings(min_rotation_deg=5.0, min_translation_m=2.0),
-    "indoor": PairingSettings(min_rotation_deg=5.0, min_translation_m=0.15),
+    "kitti": PairingSettings(min_rotation_deg=5.0, min_translation_m=1.5, expected_depth_m=15.0),
+    "ddad": PairingSettings(min_rotation_deg=5.0, min_translation_m=2.0, expected_depth_m=20.0),
+    "indoor": PairingSettings(min_rotation_deg=5.0, min_translation_m=0.15, expected_depth_m=2.0),
 }, default="kitti", descriptions={
     "kitti": "5 deg / 1.5 m (the paper's KITTI threshold)",
     "ddad": "5 deg / 2 m (the paper's DDAD threshold)",

@@ -22,11 +22,15 @@ class FrameEvaluation:
         oracle: dense metrics of the oracle rescaling of the same disparity (least squares
             on all ground-truth pixels: the best any rescaling can do), or None.
         points: accuracy of the metric points fed to the fit, or None when not evaluated.
+        rescale_abs_rel: mean of ``|D / D_oracle - 1|`` over the evaluated pixels where both
+            have depth: the error of the rescaling alone (what the fit's
+            ``predicted_error`` predicts), without the disparity's own error; or None.
     """
 
     metrics: DepthMetrics | None = None
     oracle: DepthMetrics | None = None
     points: PointAccuracy | None = None
+    rescale_abs_rel: float | None = None
 
 
 def evaluate_frame(gt_depth, depth=None, disparity=None, points_uv=None, points_depth=None, *,
@@ -41,7 +45,7 @@ def evaluate_frame(gt_depth, depth=None, disparity=None, points_uv=None, points_
         min_depth, max_depth: metres, the evaluated ground-truth range.
         points: evaluate the points (False for reference points sampled from this ground truth).
     """
-    metrics = oracle = acc = None
+    metrics = oracle = acc = rescale = None
     if depth is not None:
         # as compute_metrics(depth, gt) and compute_metrics(oracle depth, gt), with the mask, the
         # ground truth and its log computed once and the oracle's depth only where evaluated
@@ -57,9 +61,13 @@ def evaluate_frame(gt_depth, depth=None, disparity=None, points_uv=None, points_
             if ofit.ok:
                 oracle_depth = metric_depth(check_array("disparity", disparity, gt_depth.shape)[mask][None], ofit)[0]
                 oracle = metrics_on_pixels(oracle_depth, g, log_g, min_depth, max_depth)
+                ours = depth[mask].astype(np.float64)
+                both = np.isfinite(ours) & np.isfinite(oracle_depth) & (oracle_depth > 0)
+                if both.any():
+                    rescale = float(np.mean(np.abs(ours[both] / oracle_depth[both] - 1.0)))
     if points and points_uv is not None and len(points_uv):
         acc = point_depth_errors(points_uv, points_depth, gt_depth)
-    return FrameEvaluation(metrics, oracle, acc)
+    return FrameEvaluation(metrics, oracle, acc, rescale)
 
 
 def aggregate_point_accuracy(rows) -> dict:

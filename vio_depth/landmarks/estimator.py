@@ -41,6 +41,7 @@ class FrameLandmarks:
         pair_relative_sigma: median predicted relative depth sigma of its two-view
             matches with the newest keyframe (inf when undefined).
         update: the window update when it became a keyframe.
+        frame_matches: the frame's matches with the window's newest keyframes (newest first).
     """
 
     points: LandmarkPoints
@@ -49,6 +50,7 @@ class FrameLandmarks:
     matches: int
     pair_relative_sigma: float
     update: WindowUpdate | None = None
+    frame_matches: tuple[FrameMatches, ...] = ()
 
 
 class LandmarkEstimator:
@@ -133,11 +135,11 @@ class LandmarkEstimator:
         elif self._last_tracked and points.associated < s.keyframe_min_tracked_fraction * self._last_tracked:
             reason = f"{points.associated} of the newest keyframe's {self._last_tracked} landmarks found"
         if not reason:
-            return FrameLandmarks(points, False, "", n_matches, rel)
+            return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches))
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
         points = w.query(camera, None, kp, frame_id=frame_id)
         self._last_tracked = len(points)
-        return FrameLandmarks(points, True, reason, n_matches, rel, update)
+        return FrameLandmarks(points, True, reason, n_matches, rel, update, tuple(matches))
 
     def keyframe_features(self, frame_id: int):
         """The ``matchers.Features`` of a keyframe in the window (None for any other frame)."""

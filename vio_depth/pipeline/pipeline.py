@@ -74,14 +74,15 @@ class Pipeline:
         self.points = None
         if sfm:
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
-                                        settings.min_matches)
+                                        settings.min_matches, settings.consistency)
         elif landmarks:
             if not isinstance(self.pose_source, GroundTruthPoses):
                 raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
                                     f"the {self.pose_source.name!r} pose source gives no absolute poses with "
                                     "uncertainty to use as priors")
-            self.points = LandmarkPointsStage(matcher, settings.landmarks.resolved(getattr(sequence, "pose_kind",
-                                                                                           "mocap")))
+            self.points = LandmarkPointsStage(
+                matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
+                self.pose_source.uncertainty, settings.consistency)
 
     @property
     def matcher(self) -> Matcher | None:
@@ -179,7 +180,9 @@ class Pipeline:
         else:
             outcome = self.rescaler.update(d[inside], points.depth[inside], result.points_sigma,
                                            None if points.confidence is None else points.confidence[inside],
-                                           disparity_map=disparity)
+                                           disparity_map=disparity,
+                                           depth_shared=None if points.depth_shared is None
+                                           else points.depth_shared[inside])
         timings["fit"] = clock() - t
         result.rescale = outcome
         own = outcome.scale_only if outcome.scale_only is not None and outcome.scale_only.ok else outcome.raw

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from matchers import Features
+from triangulation import PoseConsistency
 
 from ..evaluation import PointSourceSpec
 from ..frame import Frame
@@ -30,6 +31,12 @@ class PairAttempt:
         valid: points that passed every check.
         T_kf_cur: (4, 4) the relative pose used (current camera to keyframe camera, metres),
             or None.
+        predicted_error: the pair's predicted median relative depth sigma before matching
+            (:func:`triangulation.predicted_depth_error`), or None.
+        consistency: the images' test of the stated pose
+            (:class:`triangulation.PoseConsistency`), or None (pose taken as exact).
+        pose_sigma: ``(rotation deg, translation m)`` 1-sigma of the relative pose used
+            (largest axis, inflation included), or None (exact).
     """
 
     keyframe: int
@@ -39,6 +46,9 @@ class PairAttempt:
     point_status: dict[str, int] = field(default_factory=dict)
     valid: int = 0
     T_kf_cur: np.ndarray | None = field(default=None, repr=False, compare=False)
+    predicted_error: float | None = None
+    consistency: PoseConsistency | None = field(default=None, compare=False)
+    pose_sigma: tuple[float, float] | None = None
 
     def problem(self, min_matches: int) -> str:
         """Why this pair gave no point ("" when it did)."""
@@ -46,6 +56,9 @@ class PairAttempt:
             return f"{self.matches} matches with keyframe {self.keyframe} (< {min_matches})"
         if self.status == PairStatus.NO_VALID_POINTS:
             return f"no point passed the checks with keyframe {self.keyframe}"
+        if self.status == PairStatus.POSE_INCONSISTENT and self.consistency is not None:
+            return (f"keyframe {self.keyframe}: the images disagree with the poses beyond their stated "
+                    f"uncertainty: {self.consistency.describe()}")
         return ""
 
 
@@ -93,6 +106,11 @@ class PointsOutcome:
         T_w_c: (4, 4) camera-to-world pose of the frame as the stage used it (the landmark
             window's refined pose), or None when the stage used relative poses only.
         timings: seconds of ``matching`` and ``triangulation``, summed over the pairs.
+        depth_shared: (N, K) metres, the points' sensitivities to K independent unit-variance
+            errors they share (their relative poses', six per pair or one set for the
+            landmark window's frame pose), or None (no pose uncertainty).
+        pose_inflation: the factor the stated pose uncertainty was inflated by, because the
+            images showed it too small (:class:`triangulation.PoseInflation`), or None.
     """
 
     status: FrameStatus
@@ -106,6 +124,9 @@ class PointsOutcome:
     landmarks: LandmarkInfo | None = None
     T_w_c: np.ndarray | None = field(default=None, repr=False)
     timings: dict[str, float] = field(default_factory=dict, repr=False)
+    depth_shared: np.ndarray | None = field(default=None, repr=False)
+    pose_inflation: float | None = None
+    scale_agreement: tuple[float, float, int] | None = None
 
     @property
     def partners(self) -> list[int]:
@@ -193,7 +214,7 @@ class FrameResult:
         arrays (``points_*`` and the points stage's ``uv``, ``depth``, ``sigma``,
         ``confidence``); statuses, fit, poses, pairs and timings are kept."""
         points = replace(self.points, uv=np.zeros((0, 2), self.points.uv.dtype),
-                         depth=np.zeros(0, self.points.depth.dtype), sigma=None, confidence=None)
+                         depth=np.zeros(0, self.points.depth.dtype), sigma=None, confidence=None, depth_shared=None)
         return replace(self, depth=None, disparity=None, depth_released=self.has_depth, points=points,
                        points_uv=None, points_depth=None, points_sigma=None, points_inlier=None)
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from matchers import MATCHER_PRESETS, LearnedMatcherSettings, MatcherSettings, SiftSettings
-from triangulation import TRIANGULATION_PRESETS, TriangulationSettings
+from triangulation import TRIANGULATION_PRESETS, ConsistencySettings, TriangulationSettings
 from vio_core.errors import SettingsError
 from vio_core.settings import Presets, override, to_plain
 
@@ -52,6 +52,9 @@ class PipelineSettings:
             default: the preset of the sequence's kind of poses.
         disparity: where the disparity comes from (the sequence's own, files, SIMULATED, a model).
         min_matches: fewer matches than this in a pair -> it is not triangulated.
+        consistency: how each pair's stated pose is tested against its matches, and its
+            uncertainty inflated where the images show it too small
+            (:class:`triangulation.ConsistencySettings`, docs/error_model.md).
     """
 
     matcher: MatcherSettings = field(default_factory=SiftSettings)
@@ -63,6 +66,7 @@ class PipelineSettings:
     landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
     disparity: DisparitySettings = field(default_factory=DisparitySettings)
     min_matches: int = 20
+    consistency: ConsistencySettings = field(default_factory=ConsistencySettings)
 
     def __post_init__(self):
         if isinstance(self.points, str):

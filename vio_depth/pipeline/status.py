@@ -22,6 +22,7 @@ class FrameStatus(str, enum.Enum):
     FALLBACK_PREVIOUS_FIT = "fallback_previous_fit"
     NO_PAIR = "no_pair"
     NO_POSE = "no_pose"
+    POSE_INCONSISTENT = "pose_inconsistent"  # the images disagree with the frame's poses beyond their uncertainty
     TOO_FEW_MATCHES = "too_few_matches"
     TOO_FEW_POINTS = "too_few_points"
     ILL_CONDITIONED = "ill_conditioned"
@@ -42,6 +43,7 @@ class PairStatus(str, enum.Enum):
     OK = "ok"  # at least one point passed every check
     TOO_FEW_MATCHES = "too_few_matches"  # fewer matches than ``min_matches``: not triangulated
     NO_VALID_POINTS = "no_valid_points"  # triangulated, but no point passed the checks
+    POSE_INCONSISTENT = "pose_inconsistent"  # the matches disagree with the stated pose: not triangulated
 
 
 _FROM_FIT_SOURCE = {

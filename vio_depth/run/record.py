@@ -75,6 +75,15 @@ class FrameRecord:
     backfilled: bool | None = None
     disparity_valid_fraction: float | None = None
     predicted_error: float | None = None
+    predicted_abs_rel: float | None = None
+    predicted_pose_error: float | None = None
+    rescale_abs_rel: float | None = None
+    pose_sigma_rotation_deg: float | None = None
+    pose_sigma_translation_m: float | None = None
+    pose_inflation: float | None = None
+    pose_chi2: float | None = None
+    pair_scale_log_ratio: float | None = None
+    pair_scale_sigma: float | None = None
     pose_status: str | None = None
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
@@ -124,6 +133,15 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         rec.landmarks_associated = info.associated
         rec.window_residual_px = _round(info.window_residual_px, 3)
         rec.pose_shift_sigmas = _round(info.pose_shift_sigmas, 3)
+    if points.attempts and points.attempts[0].pose_sigma is not None:
+        rec.pose_sigma_rotation_deg = _round(points.attempts[0].pose_sigma[0], 5)
+        rec.pose_sigma_translation_m = _round(points.attempts[0].pose_sigma[1], 6)
+    rec.pose_inflation = _round(points.pose_inflation, 3)
+    tested = [a.consistency.chi2 for a in points.attempts if a.consistency is not None and a.consistency.tested]
+    rec.pose_chi2 = _round(max(tested), 3) if tested else None
+    if points.scale_agreement is not None:
+        rec.pair_scale_log_ratio = _round(points.scale_agreement[0], 5)
+        rec.pair_scale_sigma = _round(points.scale_agreement[1], 5)
     if points.motion is not None:
         rec.pair_rotation_deg = round(points.motion.rotation_deg, 3)
         rec.pair_translation_m = round(points.motion.translation_m, 4)
@@ -134,6 +152,8 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
         rec.fit_diagnostics = out.raw.to_json()
         if out.predicted_error is not None:
             rec.predicted_error = _round(out.predicted_error, 5)
+        rec.predicted_abs_rel = _round(out.predicted_abs_rel, 5)
+        rec.predicted_pose_error = _round(out.predicted_pose_error, 5)
         if out.fit is not None:
             rec.alpha, rec.beta = float(out.fit.alpha), float(out.fit.beta)
             rec.sigma_alpha, rec.sigma_beta = _round(out.fit.sigma_alpha), _round(out.fit.sigma_beta)
@@ -144,6 +164,7 @@ def frame_record(result: FrameResult, evaluation: FrameEvaluation | None = None)
             rec.delta1 = _round(evaluation.metrics.delta1, 5)
         if evaluation.oracle is not None:
             rec.oracle_abs_rel = _round(evaluation.oracle.abs_rel, 5)
+        rec.rescale_abs_rel = _round(evaluation.rescale_abs_rel, 5)
         if evaluation.points is not None:
             acc = evaluation.points
             rec.points_evaluated = int(acc.count)
