@@ -56,6 +56,11 @@ SETTING_RANGES: dict[str, str] = {
     "ConsistencySettings.window": "[1, inf)",
     "ConsistencySettings.prior_pairs": "(0, inf)",
     "ConsistencySettings.max_inflation": "[1, inf)",
+    "PoseUncertainty.rotation_deg": "[0, inf)",
+    "PoseUncertainty.rotation_fraction": "[0, inf)",
+    "PoseUncertainty.translation_m": "[0, inf)",
+    "PoseUncertainty.translation_fraction": "[0, inf)",
+    "PoseUncertainty.time_jitter_s": "[0, inf)",
     # triangulation
     "TriangulationSettings.max_sampson_px": "(0, inf)",
     "TriangulationSettings.max_reprojection_px": "(0, inf)",
