@@ -39,6 +39,7 @@ from .experiments import add_eval_parser, format_results, request_from_args, run
 from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats
 from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
+from .poses import POSE_UNCERTAINTY_PRESETS, GroundTruthPoseSettings
 from .report import build_report
 from .run import (
     EXIT_ERROR,
@@ -76,6 +77,12 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
                    help="pair-selection preset: kitti (5 deg / 1.5 m, default), ddad (5 deg / 2 m), indoor (5 deg / 0.15 m)")
     g.add_argument("--min-rotation", type=float, default=None, metavar="DEG", help="override the rotation threshold")
     g.add_argument("--min-translation", type=float, default=None, metavar="M", help="override the translation threshold")
+    g.add_argument("--pose-uncertainty", default=None, metavar="KIND",
+                   help="what the sequence's poses get wrong (--poses gt): exact, mocap, kinectfusion, ins, headset "
+                        "(default: the sequence's kind; docs/error_model.md)")
+    g.add_argument("--max-fit-error", type=float, default=None, metavar="E",
+                   help="write a frame only when its predicted relative depth error from the rescaling is at most "
+                        "E (default 0.03)")
     g.add_argument("--rescaler", default=None, help="rescaler preset: streaming (default), per_frame, paper")
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")
@@ -193,6 +200,13 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
                                                if v is not None}, where="pairing"))
     if args.rescaler is not None:
         s = replace(s, rescaler=PRESET_FAMILIES["rescaler"][args.rescaler])
+    if args.max_fit_error is not None:
+        s = override(s, {"rescaler": {"max_fit_error": args.max_fit_error}})
+    if args.pose_uncertainty is not None:
+        if not isinstance(s.poses, GroundTruthPoseSettings):
+            raise SettingsError("--pose-uncertainty states the error of the sequence's poses (--poses gt); the "
+                                "imu and vio sources state their own covariance")
+        s = replace(s, poses=replace(s.poses, uncertainty=POSE_UNCERTAINTY_PRESETS[args.pose_uncertainty]))
     if args.no_temporal:
         s = replace(s, rescaler=replace(s.rescaler, temporal=None))
     if args.points is not None:
