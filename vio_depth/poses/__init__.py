@@ -10,12 +10,23 @@ module             job
 ``imu``            ``imu``: :class:`ImuPoseSource`
 ``static_init``    still interval, roll/pitch and gyroscope bias from the IMU alone
 ``uncertainty``    :class:`PoseUncertainty`: what a sequence's poses get wrong, presets by kind
+``timeline``       :class:`PoseTimeline`: a sequence's poses as a function of time (splines)
+``calibration``    time offset and camera-to-body transform of the poses, from the images
 ``vio_settings``   :class:`VioSettings` of the ``vio`` source (:mod:`vio_depth.vio`)
 ``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`, :func:`register_pose_source`
 =================  ===========================================================================
 """
 
 from .base import FramePose, PoseSource, RelativePose, TrackingPoseSource
+from .calibration import (
+    PoseCalibration,
+    PoseCalibrationSettings,
+    calibrated_poses,
+    calibration_pairs,
+    estimate_pose_calibration,
+    solve_pose_calibration,
+)
+from .calibration_solver import PairMatches
 from .groundtruth import GroundTruthPoses, GroundTruthPoseSettings
 from .imu import ImuPoseSource
 from .imu_state import ImuPoseSettings, NavEstimate
@@ -31,6 +42,7 @@ from .preintegration import (
 )
 from .registry import POSE_PRESETS, PoseSettings, create_pose_source, register_pose_source
 from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
+from .timeline import PoseTimeline
 from .uncertainty import POSE_UNCERTAINTY_PRESETS, FrameTwist, PoseUncertainty, camera_twist
 from .vio_settings import VioInitSettings, VioSettings
 
@@ -47,6 +59,10 @@ __all__ = [
     "ImuPoseSettings",
     "ImuPoseSource",
     "NavEstimate",
+    "PairMatches",
+    "PoseCalibration",
+    "PoseCalibrationSettings",
+    "PoseTimeline",
     "PoseSettings",
     "PoseSource",
     "RelativePose",
@@ -57,13 +73,17 @@ __all__ = [
     "VioSettings",
     "WindowFit",
     "adjoint",
+    "calibrated_poses",
+    "calibration_pairs",
     "create_pose_source",
     "detect_still_interval",
+    "estimate_pose_calibration",
     "fit_window",
     "gravity_aligned_rotation",
     "integrate_interval",
     "preintegrate",
     "preintegration_params",
     "register_pose_source",
+    "solve_pose_calibration",
     "static_initialisation",
 ]
