@@ -56,6 +56,7 @@ from .run import (
     run_sequence,
     staging_path,
 )
+from .run.config import CALIBRATE_POSES_CHOICES
 from .run.folder import JOURNAL_NAME
 from .run.ranges import check_settings
 
@@ -109,6 +110,10 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-backfill", action="store_true", default=None,
                    help="streaming behaviour only: no backward pass for the first frames that found no "
                         "earlier partner (see docs/design.md)")
+    r.add_argument("--calibrate-poses", default=None, choices=list(CALIBRATE_POSES_CHOICES),
+                   help="auto (default): with --poses gt, estimate the time offset and camera-to-body transform "
+                        "between the sequence's poses and its camera from the images and use the corrected poses "
+                        "when significant and well constrained (metrics.json: pose_calibration); off: poses as given")
     r.add_argument("--uncertainty", action="store_true", default=None,
                    help="also write uncertainty/<stem>.png: 1-sigma depth (metres x 256)")
     r.add_argument("--max-depth", type=float, default=None, help="depth cap for evaluation, metres (default 80)")
@@ -227,7 +232,8 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
             raise SettingsError(f"--device {args.device} does not apply: the {type(s.matcher).__name__} matcher "
                                 "and this disparity source run on the CPU")
     run = override(run, {k: v for k, v in (("max_frames", args.max_frames), ("uncertainty", args.uncertainty),
-                                            ("max_eval_depth", args.max_depth)) if v is not None}, where="run")
+                                            ("max_eval_depth", args.max_depth),
+                                            ("calibrate_poses", args.calibrate_poses)) if v is not None}, where="run")
     if args.no_backfill:
         run = replace(run, backfill=False)
     if args.no_evaluation:

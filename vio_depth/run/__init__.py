@@ -15,6 +15,7 @@ module             job
 ``sinks``          :class:`FrameSink`: further consumers of every frame (ROS / MCAP output, Rerun view)
 ``verdict``        :func:`judge_run`: "nothing came out", the exit codes
 ``trajectory``     the camera poses the run used (``trajectory.tum``), their ATE / RPE
+pose_calibration   ``--calibrate-poses``: the pre-pass, :class:`PoseCalibratedSequence`
 =================  ============================================================================
 """
 
@@ -22,6 +23,7 @@ from .config import RunSettings, config_from_dict, config_to_dict, dump_config, 
 from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path, staging_path
 from .outputs import RunOutputs
 from .overlap import OrderedWriter, Prefetcher
+from .pose_calibration import PoseCalibratedSequence, calibrate_run_poses
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
 from .runner import backfill_leading_frames, run_header, run_sequence
@@ -60,6 +62,8 @@ __all__ = [
     "RunHeader",
     "RunOutputs",
     "RunSettings",
+    "PoseCalibratedSequence",
+    "calibrate_run_poses",
     "RunSummary",
     "SinkFactory",
     "TrajectoryReport",

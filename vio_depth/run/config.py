@@ -28,7 +28,12 @@ from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
 from ..pipeline import PipelineSettings
+from ..poses import PoseCalibrationSettings
 from .verdict import MIN_DEPTH_FRACTION
+
+
+#: values of ``RunSettings.calibrate_poses`` (``--calibrate-poses``)
+CALIBRATE_POSES_CHOICES = ("auto", "off")
 
 
 @dataclass(frozen=True)
@@ -56,6 +61,14 @@ class RunSettings:
         evaluate: evaluate each frame against the sequence's ground-truth depth, when it has
             some (dense metrics, oracle, point accuracy); False skips that work
             (``--no-evaluation``).
+        calibrate_poses: ``auto`` (the default): with ``--poses gt`` on poses that are not
+            exact (not a rendered sample), an offline pre-pass estimates the time offset and
+            camera-to-body transform between the sequence's poses and its camera and the run
+            uses the corrected poses when the estimate is significant and well constrained
+            (:mod:`vio_depth.poses.calibration`; ``metrics.json``'s ``pose_calibration``);
+            ``off`` takes the poses as they are (``--calibrate-poses``).
+        pose_calibration: how that estimate is made and judged
+            (:class:`~vio_depth.poses.PoseCalibrationSettings`).
     """
 
     max_frames: int = 0
@@ -68,8 +81,13 @@ class RunSettings:
     report: bool = False
     min_depth_fraction: float = MIN_DEPTH_FRACTION
     evaluate: bool = True
+    calibrate_poses: str = "auto"
+    pose_calibration: PoseCalibrationSettings = field(default_factory=PoseCalibrationSettings)
 
     def __post_init__(self):
+        if self.calibrate_poses not in CALIBRATE_POSES_CHOICES:
+            raise SettingsError(f"calibrate_poses must be one of {', '.join(CALIBRATE_POSES_CHOICES)}, "
+                                f"got {self.calibrate_poses!r}")
         if isinstance(self.max_frames, bool) or not isinstance(self.max_frames, int) or self.max_frames < 0:
             raise SettingsError(f"max_frames must be a non-negative integer (0 = all), got {self.max_frames!r}")
         if not 0 <= self.min_eval_depth < self.max_eval_depth:

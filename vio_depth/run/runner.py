@@ -38,6 +38,7 @@ from .overlap import (
     overlap_opencv_threads,
     prefetch_workers,
 )
+from .pose_calibration import calibrate_run_poses, calibrated_sequence
 from .record import FrameRecord, RunHeader, frame_record
 from .resume import ResumeError, ResumePlan, plan_run, record_difference
 from .sinks import FrameSink, SinkFactory
@@ -124,11 +125,12 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
     try:
         frame_sinks = [make(folder.staging) for make in sinks]
         workers = _prefetch_workers(pipeline) if overlap else 1
+        calibration = calibrate_run_poses(sequence, pipeline, settings, n)  # --calibrate-poses: before any frame
         with opencv_threads(overlap_opencv_threads(workers) if overlap else None), \
                 blas_threads(1 if overlap else None), \
                 TorchThreads(1 if overlap and workers > 1 else None) as torch_threads:
-            summary = _run(sequence, pipeline, folder, settings, header, plan, progress, n, overlap, workers,
-                           torch_threads, frame_sinks)
+            summary = _run(calibrated_sequence(sequence, calibration, n), pipeline, folder, settings, header, plan,
+                           progress, n, overlap, workers, torch_threads, frame_sinks, calibration.to_json())
         folder.commit()
     except BaseException:
         for sink in frame_sinks:
@@ -162,10 +164,11 @@ def _prepare(sequence: Sequence, pipeline: Pipeline, i: int, features: Features 
 
 def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings: RunSettings, header: RunHeader,
          plan: ResumePlan, progress: bool | None, n: int, overlap: bool, workers: int = 1,
-         torch_threads: TorchThreads | None = None, sinks: list[FrameSink] = ()) -> RunSummary:
+         torch_threads: TorchThreads | None = None, sinks: list[FrameSink] = (),
+         pose_calibration: dict | None = None) -> RunSummary:
     """The frame loop (replaying the journaled frames first), the backward pass and the run-end
     outputs, all written into ``folder.staging``; ``torch_threads`` is polled after each frame
-    (a matcher may load torch during the run)."""
+    (a matcher may load torch during the run); ``pose_calibration`` goes into ``metrics.json``."""
     out_dir = folder.staging
     outputs = RunOutputs(out_dir, uncertainty=settings.uncertainty)
     export = settings.export if not settings.report else replace(settings.export, thumbnails=True)
@@ -266,6 +269,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         disparity_kind=header.disparity_kind,
         run=header.to_json(),
         resumed_frames=plan.start,
+        pose_calibration=pose_calibration,
     )
     timing_frames = [records[i].timings for i in range(n)]
     for r in records:

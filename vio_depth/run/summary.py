@@ -33,6 +33,9 @@ class RunSummary:
         resumed_frames: frames replayed from an interrupted run (0: not resumed, -1: the
             finished run was already there); not written to ``metrics.json``, so a resumed
             run's file equals an uninterrupted one's.
+        pose_calibration: the pose-camera calibration (time offset, camera-to-body transform,
+            their 1-sigmas, whether applied and why;
+            :meth:`vio_depth.poses.PoseCalibration.to_json`), or None.
     """
 
     frames_in_sequence: int
@@ -50,6 +53,7 @@ class RunSummary:
     verdict: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, Any] = field(default_factory=dict)
     resumed_frames: int = 0
+    pose_calibration: dict[str, Any] | None = None
 
     def to_json(self) -> dict:
         out = asdict(self)
@@ -113,6 +117,8 @@ def format_table(summary: RunSummary) -> str:
         )
     if summary.trajectory is not None:
         lines.append(_trajectory_line(summary.trajectory))
+    if summary.pose_calibration and summary.pose_calibration.get("estimated"):
+        lines.append(_pose_calibration_line(summary.pose_calibration))
     if summary.outputs.get("counts"):
         lines.append("also wrote: " + ", ".join(f"{k} {v}" for k, v in summary.outputs["counts"].items()))
     for note in summary.outputs.get("notes", []):
@@ -122,6 +128,17 @@ def format_table(summary: RunSummary) -> str:
     if summary.disparity_kind == "simulated":
         lines.append("note: the disparity of this sequence is SIMULATED (not a Depth Anything prediction)")
     return "\n".join(lines)
+
+
+def _pose_calibration_line(c: dict) -> str:
+    """One line: the estimated pose-camera calibration and whether the run used it."""
+    def pm(value, sigma, scale, digits):
+        return f"{value * scale:.{digits}f} +- " + ("?" if sigma is None else f"{sigma * scale:.{digits}f}")
+
+    return (f"pose calibration {'applied' if c['applied'] else 'not applied'} ({c['reason'].split(':')[0]}): "
+            f"time offset {pm(c['time_offset_s'], c['time_offset_sigma_s'], 1e3, 1)} ms, rotation "
+            f"{pm(c['rotation_deg'], c['rotation_sigma_deg'], 1, 2)} deg, translation "
+            f"{pm(c['translation_m'], c['translation_sigma_m'], 1e3, 1)} mm")
 
 
 def _trajectory_line(report: dict) -> str:
