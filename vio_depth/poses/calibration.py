@@ -304,6 +304,10 @@ def estimate_pose_calibration(frames: list[Frame], matcher: Matcher,
         return PoseCalibration.skipped("frame timestamps do not increase")
     timeline = PoseTimeline(ts, np.array([f.T_w_c for f in posed]))
     index_pairs = calibration_pairs(ts, timeline.poses[:, :3, 3], settings)
+    if len(index_pairs) < settings.min_pairs:  # decided before any image is read
+        return PoseCalibration.skipped(f"{len(index_pairs)} frame pairs that moved at least "
+                                       f"{settings.min_baseline_m * 1e3:g} mm (need {settings.min_pairs})",
+                                       pairs=len(index_pairs))
     by_position = dict(enumerate(posed))
     pairs = match_pairs(by_position, index_pairs, matcher, settings.max_matches_per_pair)
     result = solve_pose_calibration(pairs, timeline, settings)

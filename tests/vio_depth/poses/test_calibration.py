@@ -91,6 +91,17 @@ def test_estimate_from_frames_extracts_each_frame_once_and_matches_chosen_pairs(
     assert rotation_error_deg(cal.T_b_c, TRUE_T_B_C) < 0.2 and cal.seconds > 0
 
 
+def test_a_short_run_is_skipped_before_any_image_is_read():
+    ts, T_w_c, T_w_b, points = scene(n=6)
+
+    def unread():
+        raise AssertionError("an image was read")
+
+    frames = [Frame(i, float(t), f"{i:04d}", CAM, T_w_b[i], load_image=unread) for i, t in enumerate(ts)]
+    cal = estimate_pose_calibration(frames, IdMatcher(T_w_c, points))
+    assert not cal.estimated and "frame pairs that moved" in cal.reason and "(need 8)" in cal.reason
+
+
 def test_calibration_pairs_spread_anchors_and_skip_pairs_that_did_not_move():
     ts = np.arange(100) / 30.0
     positions = np.zeros((100, 3))
