@@ -97,6 +97,9 @@ def build_report(out_dir, report_dir=None, run_info: dict | None = None, name: s
         _status_section(run, plots),
         _plot_section("Accuracy against ground truth", "accuracy", plots, ["dense_error", "point_accuracy"],
                       "Per-frame errors against the sequence's ground-truth depth."),
+        _plot_section("Trust: predicted error and refusals", "trust", plots, ["trust"],
+                      "A frame is written only while its predicted error is within max_fit_error; the poses' "
+                      "uncertainty is inflated where the images show it too small (docs/error_model.md)."),
         _frames_section(ctx),
         _files_section(run),
     ]
@@ -234,6 +237,7 @@ def _plot_section(title: str, anchor: str, plots: dict, names: list, text: str) 
         "dense_error": "no per-frame AbsRel (the sequence has no ground-truth depth)",
         "point_accuracy": "no per-frame point errors (no ground-truth depth, or reference points instead of "
                           "triangulated ones)",
+        "trust": "the records carry no predicted error (a run of an older version)",
     }
     for name in names:
         if name in plots:

@@ -31,6 +31,8 @@ STATUS_COLOURS = {
     "too_few_points": "#d32f2f",
     "ill_conditioned": "#7b1fa2",
     "no_consensus": "#5d4037",
+    "uncertain_fit": "#ad1457",
+    "pose_inconsistent": "#4a148c",
     "no_disparity": "#212121",
     "corrupt_image": "#b71c1c",
 }
@@ -174,6 +176,37 @@ def figure_point_accuracy(run: RunData):
     return _finish(fig, "Triangulated points against ground truth")
 
 
+def figure_trust(run: RunData):
+    """Predicted error of each frame's fit (and the part its poses share) against the bound,
+    the actual rescaling error where evaluated, and the pose-uncertainty inflation; None
+    when no frame recorded a predicted error."""
+    if not run.has("predicted_error"):
+        return None
+    x = _frames(run)
+    inflation = run.has("pose_inflation")
+    fig, axes = _figure(3.6 if inflation else 2.6, rows=2 if inflation else 1)
+    ax = axes[0]
+    ax.plot(x, run.series("predicted_error"), color="C0", linewidth=1.2, label="predicted error (fit used or refused)")
+    if run.has("predicted_pose_error"):
+        ax.plot(x, run.series("predicted_pose_error"), color="C4", linewidth=1.0, linestyle="--",
+                label="of which the poses' (shared)")
+    if run.has("rescale_abs_rel"):
+        ax.plot(x, run.series("rescale_abs_rel"), linestyle="none", marker=".", markersize=4, color="C3",
+                label="actual (against the oracle rescaling)")
+    bound = (run.info().get("settings") or {}).get("rescaler", {}).get("max_fit_error")
+    if isinstance(bound, (int, float)):
+        ax.axhline(bound, color="0.3", linewidth=0.8, linestyle=":", label=f"max_fit_error {bound:g}")
+    ax.set_ylim(bottom=0)
+    ax.set_ylabel("relative depth error", fontsize=8)
+    ax.legend(fontsize=7, loc="best", ncol=2, framealpha=0.7)
+    if inflation:
+        axes[1].plot(x, run.series("pose_inflation"), color="C5", linewidth=1.2, label="pose uncertainty inflation")
+        axes[1].set_ylim(bottom=0.9)
+        axes[1].set_ylabel("x stated sigma", fontsize=8)
+        axes[1].legend(fontsize=7, loc="best", framealpha=0.7)
+    return _finish(fig, "Predicted error of the rescaling, and how far the images say the poses are off")
+
+
 def png_bytes(fig) -> bytes:
     """PNG bytes of ``fig`` at exactly ``figsize * DPI`` pixels, as a 256-colour palette PNG.
 
@@ -205,4 +238,5 @@ FIGURES = {
     "status": (figure_status, "status of every frame"),
     "dense_error": (figure_dense_error, "AbsRel per frame against ground truth"),
     "point_accuracy": (figure_point_accuracy, "relative error of the triangulated points per frame"),
+    "trust": (figure_trust, "predicted and actual rescaling error per frame, and the pose uncertainty inflation"),
 }
