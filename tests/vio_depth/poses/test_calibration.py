@@ -121,6 +121,9 @@ def test_timeline_passes_through_its_samples_and_follows_a_fast_rotation_between
     between = timeline.at(mid)
     truth = camera_trajectory(mid)
     assert max(rotation_error_deg(a, b) for a, b in zip(between, truth)) < 0.02  # cubic: slerp misses by ~0.1 deg
+    # the first interval and 15 ms beyond the last sample: one-sided cubics, no end conditions assumed
+    ends = np.array([ts[0] + 0.015, ts[-1] + 0.015])
+    assert max(rotation_error_deg(a, b) for a, b in zip(timeline.at(ends), camera_trajectory(ends))) < 0.05
     assert timeline.at(float(ts[3])).shape == (4, 4)
     with pytest.raises(InputError, match="increase"):
         PoseTimeline(ts[::-1], T)
