@@ -50,12 +50,14 @@ def robot(tmp_path_factory):
     return base
 
 
-def _run(base, source, name, *extra):
+def _run(base, source, name, *extra, codes=(0,)):
     out = base / f"out_{name}"
     calib = [] if source == "asl" else ["--calib", str(base / "camchain.yaml"), "--imu-calib", str(base / "imu.yaml")]
+    # the rendered sample's poses are exact: said so, as neither the folder nor the bags can say it
+    exact = [] if "--poses" in extra else ["--pose-uncertainty", "exact"]
     rc = main(["run", str(base / source), "--out", str(out), "--disparity-dir", str(base / "disparity"), *COMMON,
-               *calib, *extra])
-    assert rc == 0
+               *exact, *calib, *extra])
+    assert rc in codes
     return out
 
 
@@ -104,8 +106,10 @@ def test_a_run_on_each_bag_equals_the_run_on_the_asl_folder_byte_for_byte(runs, 
 
 
 def test_imu_poses_from_a_bag_equal_those_from_the_asl_folder(robot):
-    a = _run(robot, "asl", "asl_imu", "--poses", "imu")
-    b = _run(robot, BAGS["ros1"], "ros1_imu", "--poses", "imu")
+    # 24 frames are short for the IMU to converge: its early frames are refused for their
+    # predicted error (issue 20), so "too little came out" (exit 3) is a legitimate outcome
+    a = _run(robot, "asl", "asl_imu", "--poses", "imu", codes=(0, 3))
+    b = _run(robot, BAGS["ros1"], "ros1_imu", "--poses", "imu", codes=(0, 3))
     _assert_same_outputs(a, b)
 
 
@@ -257,7 +261,7 @@ def test_a_killed_run_resumes_to_the_same_mcap(robot, runs, tmp_path, capsys):
 
     out = tmp_path / "killed"
     argv = ["run", str(robot / BAGS["ros1"]), "--out", str(out), "--disparity-dir", str(robot / "disparity"), *COMMON,
-            "--calib", str(robot / "camchain.yaml"), "--imu-calib", str(robot / "imu.yaml"), "--save-mcap"]
+            "--pose-uncertainty", "exact", "--calib", str(robot / "camchain.yaml"), "--imu-calib", str(robot / "imu.yaml"), "--save-mcap"]
     root = Path(__file__).resolve().parents[2]
     proc = subprocess.Popen([sys.executable, "-m", "vio_depth.cli", *argv], cwd=root, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(root)})

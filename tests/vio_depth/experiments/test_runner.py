@@ -93,7 +93,9 @@ def test_imu_poses_work_on_a_range_that_does_not_start_at_frame_0():
     settings = resolve_entry(parse_sequence_arg(f"{room}@indoor,frames=20:26")).task_settings(None)
     out = evaluate_variant(open_task(str(room), settings), parse_variant("sfm:imu"))
     assert [f["frame"] for f in out["frames"]] == list(range(20, 26))
-    assert out["row"]["coverage"] > 0.5 and out["row"]["abs_rel"] < 0.1
+    # the IMU's first intervals are uncertain until its biases are fitted: those frames are
+    # refused for their predicted error (issue 20), the later ones written
+    assert out["row"]["coverage"] >= 0.5 and out["row"]["abs_rel"] < 0.1
 
 
 def replace_settings(settings, **changes):

@@ -44,7 +44,9 @@ def _frame(rng, q, with_points: bool):
 def test_previous_fit_follows_the_renormalisation_and_stops_at_the_bound(temporal):
     rng = np.random.default_rng(3)
     gt, q = _scene()
-    settings = RescalerSettings() if temporal else RescalerSettings(temporal=None)
+    # the mechanism, under the bound before issue 20 (0.10): the default 0.03 refuses carried
+    # fits older than about a frame
+    settings = RescalerSettings(max_fit_error=0.10) if temporal else RescalerSettings(temporal=None, max_fit_error=0.10)
     r = Rescaler(settings)
     for _ in range(5):
         d_map, d, depth, sigma = _frame(rng, q, True)

@@ -232,7 +232,7 @@ def test_rescaler_filter_reduces_frame_to_frame_jitter_of_median_depth():
 def test_rescaler_previous_fit_covariance_grows_with_the_filter():
     rng = np.random.default_rng(8)
     q = _scene(rng)
-    r = Rescaler(RescalerSettings(temporal=KalmanSettings()))
+    r = Rescaler(RescalerSettings(temporal=KalmanSettings(), max_fit_error=0.10))
     d_map, d, depth = _frame(rng, q, n_points=200)
     ok = r.update(d, depth, disparity_map=d_map[None])
     assert ok.source == FitSource.FRAME
