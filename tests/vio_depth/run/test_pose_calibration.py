@@ -17,7 +17,14 @@ from vio_depth.cli import main
 from vio_depth.frame import Frame
 from vio_depth.io import Sequence
 from vio_depth.poses import GroundTruthPoses, PoseCalibration
-from vio_depth.run import PoseCalibratedSequence, RunSettings, calibrate_run_poses, read_frames_jsonl
+from vio_depth.run import (
+    PoseCalibratedSequence,
+    RunSettings,
+    RunSummary,
+    calibrate_run_poses,
+    format_table,
+    read_frames_jsonl,
+)
 from vio_depth.run.pose_calibration import calibrated_sequence
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "poses"))  # the calibration tests' scene
@@ -97,3 +104,15 @@ def test_tracked_poses_are_calibrated_and_the_run_sees_the_camera_poses():
     assert rotation_error_deg(seq[10].T_w_c, T_w_c[10]) > 1.0  # the sequence itself is unchanged
     assert calibrated_sequence(seq, PoseCalibration.skipped("off"), len(seq)) is seq
     assert math.isclose(c.to_json()["translation_vector_m"][0], TRUE_T_B_C[0, 3], abs_tol=0.005)
+
+
+def test_the_printed_summary_has_one_line_for_an_estimate_and_none_for_a_skip():
+    estimate = PoseCalibration(time_offset_s=0.015, time_offset_sigma_s=1e-4, rotation_deg=2.0, rotation_sigma_deg=0.01,
+                               translation_m=0.03, translation_sigma_m=0.001, applied=True, estimated=True,
+                               reason="time offset significant: time offset 15.00 +- 0.10 ms")
+    lines = format_table(RunSummary(10, 10, 5, {"ok": 5}, pose_calibration=estimate.to_json())).splitlines()
+    assert [ln for ln in lines if ln.startswith("pose calibration")] == [
+        "pose calibration applied (time offset significant): time offset 15.0 +- 0.1 ms, rotation 2.00 +- 0.01 deg, "
+        "translation 30.0 +- 1.0 mm"]
+    skipped = RunSummary(10, 10, 5, {"ok": 5}, pose_calibration=PoseCalibration.skipped("exact poses").to_json())
+    assert "pose calibration" not in format_table(skipped)
