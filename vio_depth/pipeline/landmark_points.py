@@ -11,9 +11,9 @@ The same error model as the two-view stage (docs/error_model.md): the frame's ma
 the window's newest keyframes test the sequence's relative poses against their stated
 uncertainty (:func:`triangulation.pose_consistency`; a frame all of whose tested pairs
 disagree is ``pose_inconsistent``), the inflation is estimated online, and the points carry
-their depth sensitivities to the relative pose with the window keyframe of the longest
-baseline: the window's scale comes from the poses, so their error moves every landmark of
-the frame together.
+their depth sensitivities to the relative pose with the longest-baseline keyframe the frame
+was matched with: the window's scale comes from the poses, so their error moves every
+landmark of the frame together.
 """
 
 from __future__ import annotations
@@ -83,7 +83,8 @@ class LandmarkPointsStage:
             return PointsOutcome(FrameStatus.TOO_FEW_POINTS, pts.reason or "no landmark seen", landmarks=info,
                                  T_w_c=pts.T_w_c, pose_inflation=inflation)
         return PointsOutcome(FrameStatus.OK, pts.reason, uv=pts.uv, depth=pts.depth, sigma=pts.sigma_depth,
-                             landmarks=info, T_w_c=pts.T_w_c, depth_shared=self._shared(frame_id, frame, pts),
+                             landmarks=info, T_w_c=pts.T_w_c,
+                             depth_shared=self._shared(frame_id, frame, pts, out.frame_matches),
                              pose_inflation=inflation)
 
     def _covariance(self, kf_id: int, frame_id: int, T_kf_cur) -> np.ndarray:
@@ -122,16 +123,20 @@ class LandmarkPointsStage:
                     f"x{self.inflation.value:.2g}): " + "; ".join(refused))
         return ""
 
-    def _shared(self, frame_id: int, frame: Frame, pts) -> np.ndarray | None:
-        """(N, 6): the points' sensitivities to the relative pose with the window keyframe of the
-        longest baseline (the one that fixes their depth best), or None (exact poses)."""
+    def _shared(self, frame_id: int, frame: Frame, pts, frame_matches) -> np.ndarray | None:
+        """(N, 6): the points' sensitivities to the relative pose with the keyframe of the
+        longest baseline among those the frame was matched with (the newest of the window,
+        whose landmarks it sees; their depths rest on those keyframes' relative poses), or
+        None (exact poses)."""
         if self.uncertainty.exact:
             return None
         window = self.estimator.window
         best, longest = None, -1.0
-        for k in window.keyframe_ids:
+        for k in [m.keyframe for m in frame_matches] or window.keyframe_ids:
+            if k == frame_id or k not in window.keyframe_ids:
+                continue
             info = window.keyframe(k)
-            if k == frame_id or info.T_w_c is None:
+            if info.T_w_c is None:
                 continue
             T = relative_transform(info.T_w_c, frame.T_w_c)
             if np.linalg.norm(T[:3, 3]) > longest:
