@@ -295,6 +295,9 @@ def _cmd_presets() -> int:
         for name in presets:
             mark = " (default)" if name == presets.default else ""
             print(f"  {name:20s} {presets.describe(name)}{mark}")
+    print("pose uncertainty (--pose-uncertainty; default: the sequence's kind of poses):")
+    for name in POSE_UNCERTAINTY_PRESETS:
+        print(f"  {name:20s} {POSE_UNCERTAINTY_PRESETS.describe(name)}")
     print("points:\n  " + ", ".join(POINT_SPEC_FORMS))
     print("disparity:\n  " + ", ".join(DISPARITY_CHOICES) + "   (simulation presets: " + ", ".join(disparity_presets()) + ")")
     print("formats:\n  " + ", ".join(available_formats()))
