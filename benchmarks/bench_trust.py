@@ -47,31 +47,15 @@ import platform
 import subprocess
 import sys
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bench_landmarks import DATASETS, PATHS, Dataset  # the same datasets, pairings and paths
+
 REPO = Path(__file__).resolve().parents[1]
 
 
-@dataclass(frozen=True)
-class Dataset:
-    name: str
-    path: str  # relative to --data ("DATA/...") or to the repository
-    pairing: str
-    disparity: str  # "simulated" or "sequence"
-    max_depth: float
-    frames: int | None = None
-
-
-DATASETS = {d.name: d for d in (
-    Dataset("7scenes", "DATA/7scenes_redkitchen", "indoor", "simulated", 10.0, 300),
-    Dataset("kitti", "DATA/kitti_tiny", "kitti", "simulated", 80.0),
-    Dataset("street", "sample_sequences/street", "kitti", "sequence", 80.0),
-    Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
-)}
-PATHS = {"two-view": "sfm", "landmarks": "landmarks"}
 WRITES = {"ok", "fallback_scale_only", "fallback_previous_fit"}
 
 # the run, as a script: it imports the packages of the checkout it is given (argv[1])
