@@ -61,7 +61,14 @@ from ..frame import Frame, ImuData, imu_sample_problem
 from .base import Sequence, SequenceFormat, register_format
 from .decode import decode_image
 from .images import read_image_bytes
-from .tables import QUATERNION_NORM_TOLERANCE, TextTable, interpolate_poses, read_text_table, stays_inside
+from .tables import (
+    QUATERNION_NORM_TOLERANCE,
+    TextTable,
+    interpolate_poses,
+    read_text_table,
+    stays_inside,
+    yaml_float,
+)
 
 #: ASL distortion model names -> vio_core.Camera models
 DISTORTION_MODEL_NAMES = {"radial-tangential": "radtan", "radtan": "radtan", "equidistant": "equidistant",
@@ -151,25 +158,10 @@ def _key_line(lines: list[str], key: str) -> int | None:
     return next((i for i, ln in enumerate(lines, 1) if pat.match(ln)), None)
 
 
-def _as_float(value) -> float | None:
-    """A finite float from a YAML scalar, or None. Strings such as ``2e-05`` count: YAML 1.1
-    (PyYAML) reads exponents without a decimal point as strings."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            return None
-    if not isinstance(value, (int, float)) or not np.isfinite(value):
-        return None
-    return float(value)
-
-
 def _numbers(value, n: int | tuple[int, ...], path: Path, lines: list[str], key: str) -> np.ndarray:
     """``value`` as a float array of one of the lengths ``n``, else an error at ``key``'s line."""
     sizes = (n,) if isinstance(n, int) else n
-    floats = [_as_float(v) for v in value] if isinstance(value, list) else None
+    floats = [yaml_float(v) for v in value] if isinstance(value, list) else None
     if floats is None or len(floats) not in sizes or any(f is None for f in floats):
         want = " or ".join(str(s) for s in sizes)
         raise SequenceFormatError(path, f"{key} must be a list of {want} finite numbers, got {value!r}",
@@ -184,7 +176,7 @@ def _require(data: dict, key: str, path: Path):
 
 
 def _positive(data: dict, key: str, path: Path, lines: list[str]) -> float:
-    v = _as_float(_require(data, key, path))
+    v = yaml_float(_require(data, key, path))
     if v is None or v <= 0:
         raise SequenceFormatError(path, f"{key} must be a positive number, got {data[key]!r}", _key_line(lines, key))
     return v
@@ -207,7 +199,7 @@ def parse_T_BS(data: dict, path, lines: list[str], *, required: bool = True) -> 
         raise SequenceFormatError(path, "T_BS must be a mapping with rows: 4, cols: 4 and data: [16 numbers]", line)
     if block.get("rows", 4) != 4 or block.get("cols", 4) != 4:
         raise SequenceFormatError(path, f"T_BS must be 4 x 4, got {block.get('rows')} x {block.get('cols')}", line)
-    values = [_as_float(v) for v in block["data"]] if isinstance(block["data"], list) else []
+    values = [yaml_float(v) for v in block["data"]] if isinstance(block["data"], list) else []
     if len(values) != 16 or any(v is None for v in values):
         raise SequenceFormatError(path, "T_BS data must be 16 finite numbers (row-major 4 x 4)", line)
     try:

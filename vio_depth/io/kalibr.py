@@ -51,6 +51,7 @@ from vio_core.errors import InputError, SequenceFormatError
 
 from ..frame import Frame, ImuData
 from .base import Sequence
+from .tables import yaml_float
 
 #: Kalibr distortion model names -> vio_core.Camera models
 KALIBR_DISTORTION_MODELS = {"radtan": "radtan", "equidistant": "equidistant", "none": "radtan"}
@@ -133,20 +134,6 @@ def _line(lines: list[str], key: str, after: int = 0) -> int | None:
     return next((i for i, ln in enumerate(lines, 1) if i > after and pat.match(ln)), None)
 
 
-def _float(value) -> float | None:
-    """A finite float from a YAML scalar (PyYAML reads ``2e-05`` as a string), else None."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            return None
-    if not isinstance(value, (int, float)) or not np.isfinite(value):
-        return None
-    return float(value)
-
-
 class _Block:
     """A mapping of a calibration file with errors that name the file and the key's line."""
 
@@ -165,13 +152,13 @@ class _Block:
 
     def numbers(self, key: str, sizes: tuple[int, ...], value=None) -> np.ndarray:
         value = self.require(key) if value is None else value
-        floats = [_float(v) for v in value] if isinstance(value, list) else None
+        floats = [yaml_float(v) for v in value] if isinstance(value, list) else None
         if floats is None or len(floats) not in sizes or any(f is None for f in floats):
             raise self.error(key, f"expected a list of {' or '.join(map(str, sizes))} finite numbers, got {value!r}")
         return np.asarray(floats, dtype=np.float64)
 
     def positive(self, key: str) -> float:
-        v = _float(self.require(key))
+        v = yaml_float(self.require(key))
         if v is None or v <= 0:
             raise self.error(key, f"must be a positive number, got {self.data[key]!r}")
         return v
@@ -214,7 +201,7 @@ def _read_camera(block: _Block) -> KalibrCamera:
     T_c_i = block.transform("T_cam_imu") if "T_cam_imu" in block.data else None
     shift = 0.0
     if "timeshift_cam_imu" in block.data:
-        shift = _float(block.data["timeshift_cam_imu"])
+        shift = yaml_float(block.data["timeshift_cam_imu"])
         if shift is None:
             raise block.error("timeshift_cam_imu",
                               f"must be a number of seconds, got {block.data['timeshift_cam_imu']!r}")
@@ -263,7 +250,7 @@ def read_imu_yaml(path) -> KalibrImu:
         data, name = data["imu0"], "imu0"
     block = _Block(data, path, lines, name, (_line(lines, name) or 1) - 1 if name else 0)
     noise = {field: block.positive(key) for field, key in _IMU_KEYS.items()}
-    rate = _float(data.get("update_rate")) if "update_rate" in data else None
+    rate = yaml_float(data.get("update_rate")) if "update_rate" in data else None
     topic = data.get("rostopic")
     return KalibrImu(**noise, rostopic=None if topic is None else str(topic), update_rate=rate)
 

@@ -290,3 +290,18 @@ def interpolate_poses(t_query, t_ref, T_ref, max_difference: float, *,
             out[brk, :3, :3] = (R0 * Rotation.from_rotvec(step * a[:, None])).as_matrix()
             out[brk, :3, 3] = (1 - a)[:, None] * T[jb, :3, 3] + a[:, None] * T[jb + 1, :3, 3]
     return out, ok
+
+
+def yaml_float(value) -> float | None:
+    """A finite float from a YAML scalar, or None. Strings such as ``2e-05`` count: YAML 1.1
+    (PyYAML) reads exponents without a decimal point as strings."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            return None
+    if not isinstance(value, (int, float)) or not np.isfinite(value):
+        return None
+    return float(value)
