@@ -9,8 +9,12 @@ that is moved into ``--out`` only at the end, :mod:`vio_depth.run.folder`); ``fr
 
 from __future__ import annotations
 
+import itertools
 import json
+import os
+import tempfile
 from pathlib import Path
+from typing import Iterable
 
 from ..evaluation import CameraTrajectory, write_trajectory_tum
 from ..io.depth_png import write_bytes_atomic, write_depth_png
@@ -47,13 +51,31 @@ class RunOutputs:
             write_depth_png(self.sigma_dir / f"{result.stem}.png", depth_sigma_map(result.disparity, result.fit),
                             fast=True)
 
-    def finish(self, header: RunHeader, records: list[FrameRecord], summary: RunSummary | None,
+    def finish(self, header: RunHeader, records: Iterable[FrameRecord | str], summary: RunSummary | None,
                trajectory: CameraTrajectory | None = None) -> None:
-        """``frames.jsonl`` (header line, then the records in order), ``trajectory.tum`` and
-        ``metrics.json`` when given."""
+        """``frames.jsonl`` (header line, then the records in order: :class:`FrameRecord` objects
+        or their JSON lines, streamed to the file), ``trajectory.tum`` and ``metrics.json`` when
+        given."""
         if trajectory is not None:
             write_trajectory_tum(self.root / "trajectory.tum", trajectory)
         if summary is not None:
             write_bytes_atomic(self.root / "metrics.json", (json.dumps(summary.to_json(), indent=2) + "\n").encode())
-        lines = [json.dumps(header.to_json())] + [json.dumps(r.to_json()) for r in records]
-        write_bytes_atomic(self.root / "frames.jsonl", ("\n".join(lines) + "\n").encode())
+        lines = (r if isinstance(r, str) else json.dumps(r.to_json()) for r in records)
+        write_lines_atomic(self.root / "frames.jsonl", itertools.chain([json.dumps(header.to_json())], lines))
+
+
+def write_lines_atomic(path: Path, lines: Iterable[str]) -> None:
+    """Write ``lines`` (each ended by a newline) to ``path`` via a temporary file in the same
+    folder and a rename, one line at a time (a long run's frames.jsonl is never in memory)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            for line in lines:
+                fh.write(line + "\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

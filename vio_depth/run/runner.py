@@ -6,6 +6,7 @@ docs/frames_schema.md for the records.
 
 from __future__ import annotations
 
+import json
 import logging
 import sys
 import time
@@ -27,6 +28,7 @@ from ..pipeline import FrameResult, FrameStatus, Pipeline, PreparedFrame
 from ..report import build_report
 from .config import RunSettings, config_to_dict
 from .folder import OutputFolder, OutputMode
+from .kept import KeptFrame, pack_record, slim_evaluation, unpack_record
 from .ranges import check_settings
 from .outputs import RunOutputs
 from .overlap import (
@@ -197,23 +199,26 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             res.timings["evaluation"] = time.perf_counter() - t
         return frame_record(res, evaluation), evaluation
 
-    results: dict[int, FrameResult] = {}
-    done: dict[int, tuple[FrameRecord, FrameEvaluation | None]] = {}
+    # every frame until the run's end, in a few hundred bytes each (run/kept.py): flat memory
+    results: dict[int, FrameResult | KeptFrame] = {}
+    done: dict[int, tuple[bytes, FrameEvaluation | None]] = {}
 
     def write_job(i: int, frame: Frame, res: FrameResult, journal: bool = True):
         """The writer's job for frame ``i``: its files, evaluation and record, then its journal line."""
         replay = i < plan.start and journal
 
         def job() -> None:
-            done[i] = finish_frame(frame, res, write=not replay)
+            record, evaluation = finish_frame(frame, res, write=not replay)
+            record = record.to_json()
             if replay:
-                diff = record_difference(plan.records[i], done[i][0].to_json())
+                diff = record_difference(plan.records[i], record)
                 if diff:
                     raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({frame.stem}) gave another "
                                       f"result than the interrupted run ({diff}); give --overwrite to start over")
             elif journal:
-                folder.append(done[i][0].to_json())
-            results[i] = res.without_arrays()  # every frame's result is kept: without maps and point arrays
+                folder.append(record)
+            done[i] = pack_record(record), slim_evaluation(evaluation)
+            results[i] = KeptFrame.of(res)
         return job
 
     bar = tqdm(range(n), desc=f"vio-depth {sequence.name}", unit="frame",
@@ -258,7 +263,6 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         writer.drain_quietly()  # the frames already handed over are completed and journaled
         raise
 
-    records = [done[i][0] for i in range(n)]
     evaluations = [done[i][1] for i in range(n)]
     summary = RunSummary(
         frames_in_sequence=len(sequence),
@@ -271,9 +275,12 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         resumed_frames=plan.start,
         pose_calibration=pose_calibration,
     )
-    timing_frames = [records[i].timings for i in range(n)]
-    for r in records:
-        summary.status_counts[r.status] = summary.status_counts.get(r.status, 0) + 1
+    timing_frames, verdict_records = [], []
+    for i in range(n):  # one record at a time: only the small parts are collected
+        r = json.loads(unpack_record(done[i][0]))
+        timing_frames.append(r["timings"])
+        verdict_records.append({"status": r["status"], "reason": r.get("reason", "")})
+        summary.status_counts[r["status"]] = summary.status_counts.get(r["status"], 0) + 1
     dense = [e.metrics for e in evaluations if e is not None and e.metrics is not None]
     oracle = [e.oracle for e in evaluations if e is not None and e.oracle is not None]
     if dense:
@@ -285,18 +292,18 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
         summary.point_accuracy = aggregate_point_accuracy(point_rows)
     tracker = pipeline.tracker  # a pose source with its own world poses (--poses vio): its latest estimates
     world = None if tracker is None else {i: tracker.world_pose(sequence[i]) for i in range(n)}
-    trajectory = run_trajectory(sequence, results, settings.rpe_delta_m, world)
+    trajectory = run_trajectory(sequence, {i: results[i].posed for i in range(n)}, settings.rpe_delta_m, world)
     summary.trajectory = trajectory.to_json()
     for sink in sinks:
         sink.finish(sequence, trajectory.trajectory)
     if exporter is not None:  # previews, the merged map and thumbnails need the whole run
-        summary.outputs = exporter.finish(sequence, [r.to_json() for r in records]).to_json()
-    summary.verdict = judge_run(summary, [r.to_json() for r in records], settings.min_depth_fraction).to_json()
+        summary.outputs = exporter.finish(sequence, [json.loads(unpack_record(done[i][0])) for i in range(n)]).to_json()
+    summary.verdict = judge_run(summary, verdict_records, settings.min_depth_fraction).to_json()
     summary.seconds = round(time.perf_counter() - t_start, 2)
     summary.timings = timing_summary(timing_frames, time.perf_counter() - t_start, overlap=overlap,
                                      backfill_s=t_backfill, prefetch_workers=workers)
     # frames.jsonl, trajectory.tum and metrics.json are written last, complete, after every frame succeeded
-    outputs.finish(header, records, summary, trajectory.trajectory)
+    outputs.finish(header, (unpack_record(done[i][0]) for i in range(n)), summary, trajectory.trajectory)
     if settings.report:
         summary.report = str(build_report(out_dir, name=folder.out.name).html)
     log.info("%s: metric depth for %d of %d frames in %.1f s", sequence.name, summary.frames_with_depth, n,

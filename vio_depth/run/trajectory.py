@@ -62,14 +62,32 @@ class TrajectoryReport:
                 "rpe": None if self.rpe is None else self.rpe.to_json(), "note": self.note}
 
 
-def used_poses(sequence: Sequence, results: dict[int, FrameResult],
+@dataclass(frozen=True)
+class PosedFrame:
+    """What the trajectory needs of one frame's result (a run keeps only this of each frame).
+
+    Attributes:
+        T_w_c: (4, 4) camera-to-world pose the points stage used (the landmark window's), or None.
+        relative_pose: ``(keyframe index, T_kf_cur (4, 4))`` of its first pair, or None.
+    """
+
+    T_w_c: np.ndarray | None
+    relative_pose: tuple[int, np.ndarray] | None
+
+    @classmethod
+    def of(cls, result: FrameResult) -> "PosedFrame":
+        return cls(result.points.T_w_c, result.points.relative_pose)
+
+
+def used_poses(sequence: Sequence, results: dict[int, FrameResult | PosedFrame],
                world_poses: dict[int, np.ndarray | None] | None = None) -> CameraTrajectory:
     """The camera-to-world poses the run's relative poses imply, or, given ``world_poses``
     (frame index -> (4, 4) or None: a tracking pose source's own poses), those (see the
-    module docstring)."""
+    module docstring). ``results``: each frame's result, or just its :class:`PosedFrame`."""
+    results = {i: r if isinstance(r, PosedFrame) else PosedFrame.of(r) for i, r in results.items()}
     if world_poses is not None:
         keep = sorted(i for i in results if world_poses.get(i) is not None)
-        return CameraTrajectory(np.array([results[i].timestamp for i in keep], dtype=np.float64),
+        return CameraTrajectory(np.array([sequence[i].timestamp for i in keep], dtype=np.float64),
                                 np.stack([world_poses[i] for i in keep]) if keep else np.zeros((0, 4, 4)))
     frames = {i: sequence[i] for i in results}
     poses: dict[int, np.ndarray] = {}
@@ -85,10 +103,8 @@ def used_poses(sequence: Sequence, results: dict[int, FrameResult],
         return None
 
     # a stage that used world poses (the landmark window's refined poses) gives them directly
-    poses.update({i: np.asarray(r.points.T_w_c, dtype=np.float64) for i, r in results.items()
-                  if r.points.T_w_c is not None})
-    pairs = {i: r.points.relative_pose for i, r in results.items()
-             if r.points.relative_pose is not None and i not in poses}
+    poses.update({i: np.asarray(r.T_w_c, dtype=np.float64) for i, r in results.items() if r.T_w_c is not None})
+    pairs = {i: r.relative_pose for i, r in results.items() if r.relative_pose is not None and i not in poses}
     # forward pairs in time order, then backfill pairs (with later keyframes) backwards in time
     order = sorted(i for i, (k, _) in pairs.items() if k < i) + sorted((i for i, (k, _) in pairs.items() if k > i),
                                                                        reverse=True)
@@ -102,7 +118,7 @@ def used_poses(sequence: Sequence, results: dict[int, FrameResult],
                             np.stack([poses[i] for i in keep]) if keep else np.zeros((0, 4, 4)))
 
 
-def run_trajectory(sequence: Sequence, results: dict[int, FrameResult], rpe_delta_m: float,
+def run_trajectory(sequence: Sequence, results: dict[int, FrameResult | PosedFrame], rpe_delta_m: float,
                    world_poses: dict[int, np.ndarray | None] | None = None) -> TrajectoryReport:
     """The run's trajectory, with ATE and RPE against the sequence's poses when it has them
     (``world_poses``: a tracking pose source's own poses, see :func:`used_poses`)."""
