@@ -81,6 +81,8 @@ def _proc(pid: int) -> tuple[float, int, int] | None:
     except (FileNotFoundError, ProcessLookupError, PermissionError):
         return None
     fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
+    if "VmRSS" not in fields:  # exiting (a zombie has no memory)
+        return None
     return int(fields["VmRSS"].split()[0]) / 1024.0, fds, int(fields["Threads"])
 
 
@@ -92,19 +94,28 @@ def _done(journal: Path) -> int:
         return -1
 
 
-def measure(seq: Path, out: Path, extra: list[str]) -> tuple[list[tuple], float, int, str]:
+def measure(seq: Path, out: Path, extra: list[str], log: Path | None = None) -> tuple[list[tuple], float, int, str]:
     """Run ``vio-depth run`` on ``seq`` and sample it: ``(samples, seconds, exit code, stderr)``;
-    samples are ``(seconds, frames done, RSS MiB, descriptors, threads)``."""
+    samples are ``(seconds, frames done, RSS MiB, descriptors, threads)``, also appended to
+    ``log`` (CSV) as they come."""
     journal = out.parent / f".{out.name}.vio-depth-partial" / "journal.jsonl"
     cmd = [sys.executable, "-m", "vio_depth.cli", "run", str(seq), "--out", str(out), "--no-progress", *extra]
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     samples = []
-    while proc.poll() is None:
-        s = _proc(proc.pid)
-        if s is not None:
-            samples.append((time.monotonic() - t0, _done(journal), *s))
-        time.sleep(0.25)
+    sink = open(log, "w") if log is not None else None
+    try:
+        while proc.poll() is None:
+            s = _proc(proc.pid)
+            if s is not None:
+                samples.append((time.monotonic() - t0, _done(journal), *s))
+                if sink is not None:
+                    sink.write(",".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in samples[-1]) + "\n")
+                    sink.flush()
+            time.sleep(0.25)
+    finally:
+        if sink is not None:
+            sink.close()
     err = proc.stderr.read()
     return samples, time.monotonic() - t0, proc.returncode, err
 
@@ -113,12 +124,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=10000)
     ap.add_argument("--workdir", default=None, help="keep the sequence and output here (default: a temporary folder)")
+    ap.add_argument("--samples", default=None, metavar="CSV",
+                    help="also write every sample (seconds, frames done, RSS MiB, fds, threads) to this file")
     ap.add_argument("run_args", nargs="*", help="more `vio-depth run` flags (after --)")
     args = ap.parse_args(argv)
     work = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="vio-depth-long-"))
     try:
         seq = build_sequence(work / "seq", args.frames)
-        samples, seconds, rc, err = measure(seq, work / "out", args.run_args)
+        samples, seconds, rc, err = measure(seq, work / "out", args.run_args,
+                                            None if args.samples is None else Path(args.samples))
     finally:
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
