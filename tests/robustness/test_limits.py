@@ -8,6 +8,7 @@ reader: text tables, JSON, TOML, image headers, positions, IMU calibration, OXTS
 import json
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -161,3 +162,22 @@ def test_imu_calibration_ranges(noise, gravity):
     g = float(np.linalg.norm(gravity))
     valid = math.isfinite(noise[0]) and noise[0] > 0 and 9.7 <= g <= 9.9
     assert (problem == "") is valid, problem
+
+
+def test_a_kitti_calibration_that_is_not_rigid_is_refused(tmp_path):
+    from vio_depth.io.kitti_oxts import CALIB_IMU_TO_VELO, load_kitti_calibration
+
+    drive = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti_tiny"
+    calib = next(iter(sorted(drive.glob("**/calib_cam_to_cam.txt"))), None) if drive.is_dir() else None
+    if calib is None:
+        pytest.skip("../shared/data/kitti_tiny absent")
+    import shutil
+
+    folder = tmp_path / "calib"
+    shutil.copytree(calib.parent, folder, ignore=shutil.ignore_patterns("*_drive_*"))
+    path = folder / CALIB_IMU_TO_VELO
+    lines = path.read_text().splitlines()
+    lines = [("R: " + " ".join(["1e300"] * 9)) if ln.startswith("R:") else ln for ln in lines]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(SequenceFormatError, match="not a rigid calibration"):
+        load_kitti_calibration(folder, camera=2)

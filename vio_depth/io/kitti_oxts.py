@@ -134,8 +134,13 @@ class KittiCalibration:
         return self.T_c_velo @ self.T_velo_i
 
 
-def _rigid(R_flat: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _rigid(R_flat: np.ndarray, t: np.ndarray, path, key: str) -> np.ndarray:
     R = R_flat.reshape(3, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        off = float(np.abs(R @ R.T - np.eye(3)).max())
+    if not (off <= 1e-3 and np.all(np.abs(t) <= 1e3)):  # a camera rig is not kilometres wide
+        raise SequenceFormatError(path, f"{key} is not a rigid calibration (rotation off by {off:.3g}, "
+                                        f"translation {np.asarray(t).tolist()} m)")
     # calibration rotations are printed with 7 digits: re-orthonormalise
     U, _, Vt = np.linalg.svd(R)
     T = np.eye(4)
@@ -161,13 +166,13 @@ def load_kitti_calibration(calib_dir, camera: int = 2) -> KittiCalibration:
     P = _calib_value(cc, p_cc, f"P_rect_{camera:02d}", 12).reshape(3, 4)
     size = _calib_value(cc, p_cc, f"S_rect_{camera:02d}", 2)
     R_rect = np.eye(4)
-    R_rect[:3, :3] = _rigid(_calib_value(cc, p_cc, "R_rect_00", 9), np.zeros(3))[:3, :3]
+    R_rect[:3, :3] = _rigid(_calib_value(cc, p_cc, "R_rect_00", 9), np.zeros(3), p_cc, "R_rect_00")[:3, :3]
     K = P[:, :3]
     # P = K [I | t]: the translation of this rectified camera from rectified camera 0
     T_c_c0 = np.eye(4)
     T_c_c0[:3, 3] = np.linalg.solve(K, P[:, 3])
-    T_velo_to_cam0 = _rigid(_calib_value(vc, p_vc, "R", 9), _calib_value(vc, p_vc, "T", 3))
-    T_velo_i = _rigid(_calib_value(iv, p_iv, "R", 9), _calib_value(iv, p_iv, "T", 3))
+    T_velo_to_cam0 = _rigid(_calib_value(vc, p_vc, "R", 9), _calib_value(vc, p_vc, "T", 3), p_vc, "R, T")
+    T_velo_i = _rigid(_calib_value(iv, p_iv, "R", 9), _calib_value(iv, p_iv, "T", 3), p_iv, "R, T")
     cam = Camera.from_K(K, int(round(size[0])), int(round(size[1])))
     return KittiCalibration(cam, T_c_c0 @ R_rect @ T_velo_to_cam0, T_velo_i, P)
 
