@@ -364,7 +364,9 @@ def test_case19_opencv_log_text_never_reaches_a_one_line_error(mini_street, tmp_
     png = cv2.imencode(".png", np.zeros((256, 640, 3), np.uint8))[1].tobytes()
     (seq / "images" / "000002.jpg").write_bytes(png[: len(png) // 2])
     rc, _, err = cli("run", seq, "--out", tmp_path / "o")
-    line = one_line(rc, err, "000002.jpg", "PNG input buffer is incomplete")
+    # OpenCV 5.0 logs "PNG input buffer is incomplete" (which the line may carry, without its
+    # log prefix); 5.1 logs nothing: the line names the file either way
+    line = one_line(rc, err, "000002.jpg", "cannot decode image")
     assert "global" not in line and ".cpp" not in line
 
 
