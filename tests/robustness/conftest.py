@@ -1,40 +1,13 @@
-"""Fixtures of the robustness suite: small copies of the street sample and a CLI runner.
+"""Fixtures of the robustness suite: a CLI runner (small copies of the street sample,
+``mini_street``, come from ``tests/conftest.py``).
 
 Every in-process ``vio-depth`` command of this suite is guarded by ``tests/conftest.py``:
 no file that existed before the command and was not vio-depth's may change.
 """
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
 from vio_depth.cli import main
-
-_spec = importlib.util.spec_from_file_location("_vio_depth_test_conftest",
-                                               Path(__file__).resolve().parents[1] / "vio_depth" / "conftest.py")
-_shared = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_shared)
-STREET = _shared.STREET
-copy_street = _shared.copy_street
-tree_digest = _shared.tree_digest
-
-
-@pytest.fixture
-def mini_street(tmp_path):
-    """Factory: ``mini_street(n=10, name="seq")`` copies the first n frames of the street sample."""
-    if not (STREET / "sequence.json").exists():
-        pytest.skip("bundled street sample missing")
-
-    def make(n: int = 10, name: str = "seq") -> Path:
-        return copy_street(tmp_path / name, n)
-
-    return make
-
-
-@pytest.fixture
-def digest():
-    return tree_digest
 
 
 @pytest.fixture
