@@ -12,6 +12,7 @@ import math
 import os
 import tempfile
 from pathlib import Path
+from typing import Iterable
 
 import cv2
 import numpy as np
@@ -112,11 +113,18 @@ def write_depth_png(path, depth, scale: float = DEPTH_PNG_SCALE, *, fast: bool =
 
 def write_bytes_atomic(path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
+    write_chunks_atomic(path, (data,))
+
+
+def write_chunks_atomic(path, chunks: Iterable[bytes]) -> None:
+    """Write ``chunks`` one after the other to ``path`` via a temporary file in the same
+    folder and a rename (a long run's frames.jsonl is never in memory as a whole)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            for chunk in chunks:
+                fh.write(chunk)
         # mkstemp creates 0600 files; give the result the permissions open() would have
         umask = os.umask(0)
         os.umask(umask)

@@ -11,13 +11,11 @@ from __future__ import annotations
 
 import itertools
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Iterable
 
 from ..evaluation import CameraTrajectory, write_trajectory_tum
-from ..io.depth_png import write_bytes_atomic, write_depth_png
+from ..io.depth_png import write_bytes_atomic, write_chunks_atomic, write_depth_png
 from ..pipeline import FrameResult
 from ..rescale import depth_sigma_map
 from .record import FrameRecord, RunHeader
@@ -67,15 +65,4 @@ class RunOutputs:
 def write_lines_atomic(path: Path, lines: Iterable[str]) -> None:
     """Write ``lines`` (each ended by a newline) to ``path`` via a temporary file in the same
     folder and a rename, one line at a time (a long run's frames.jsonl is never in memory)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            for line in lines:
-                fh.write(line + "\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_chunks_atomic(path, ((line + "\n").encode("utf-8") for line in lines))
