@@ -35,7 +35,6 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import SettingsError
 
-from .triangulate import _depth, _depth_jacobian_pose
 
 _STEP = 1e-6  # central-difference step of the residual Jacobian (rad, and baselines for translation)
 _HUBER = 1.345  # Huber threshold in residual scales (95 % efficiency)
@@ -94,11 +93,6 @@ class PoseConsistency:
         rotation_deg: size of the rotation correction the images ask for.
         direction_deg: size of the change of the translation's direction they ask for.
         residual_px: robust scale of the epipolar residuals after the correction.
-        depth_shift: how much the images' correction would move the pair's depths (median
-            relative change over the matches, signed): the part of the disagreement that
-            matters for depth.
-        depth_shift_sigma: its predicted 1-sigma from the stated covariance (times the
-            inflation) and the correction's own noise.
     """
 
     matches: int
@@ -108,8 +102,6 @@ class PoseConsistency:
     rotation_deg: float
     direction_deg: float
     residual_px: float
-    depth_shift: float = 0.0
-    depth_shift_sigma: float = math.inf
     terms: tuple = field(default=(), repr=False, compare=False)  # (d_v, S_v, C_v) for pooling
 
     @property
@@ -124,15 +116,11 @@ class PoseConsistency:
     def untested(cls, matches: int = 0) -> "PoseConsistency":
         return cls(matches, 0, 0.0, 0.0, 0.0, 0.0, math.nan)
 
-    @property
-    def depth_chi2(self) -> float:
-        """``(depth_shift / depth_shift_sigma)^2``: the 1-dof test of the depth-relevant part."""
-        return (self.depth_shift / self.depth_shift_sigma) ** 2 if self.depth_shift_sigma > 0 else math.inf
 
-
-def _signed_sampson(R, t, K_cur_inv, K_ref_inv, xc, xr):
-    """(..., N) signed Sampson residuals (pixels) of homogeneous ideal pixels ``xc``, ``xr`` (N, 3)
-    for a batch of poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
+def signed_sampson(R, t, K_cur_inv, K_ref_inv, xc, xr) -> np.ndarray:
+    """(..., N) signed Sampson residuals (pixels) of homogeneous ideal pixels ``xc`` (current),
+    ``xr`` (reference), each (N, 3), for a batch of relative poses ``T_ref_cur``: rotations
+    ``R: (..., 3, 3)``, translations ``t: (..., 3)`` metres; ``K_cur_inv``, ``K_ref_inv``: (3, 3)."""
     tx = np.zeros(t.shape[:-1] + (3, 3))
     tx[..., 0, 1], tx[..., 0, 2], tx[..., 1, 2] = -t[..., 2], t[..., 1], -t[..., 0]
     tx[..., 1, 0], tx[..., 2, 0], tx[..., 2, 1] = t[..., 2], -t[..., 1], t[..., 0]
@@ -174,7 +162,7 @@ def pose_consistency(uv_cur, uv_ref, camera_cur: Camera, camera_ref: Camera, T_r
     K_cur_inv, K_ref_inv = np.linalg.inv(camera_cur.K), np.linalg.inv(camera_ref.K)
     xc = np.column_stack([camera_cur.undistort_points(uv_cur), np.ones(len(uv_cur))])
     xr = np.column_stack([camera_ref.undistort_points(uv_ref), np.ones(len(uv_ref))])
-    s = _signed_sampson(R, t, K_cur_inv, K_ref_inv, xc, xr)
+    s = signed_sampson(R, t, K_cur_inv, K_ref_inv, xc, xr)
     use = np.abs(s) <= settings.max_residual_px
     n = int(use.sum())
     if n < _MIN_MATCHES:
@@ -186,7 +174,7 @@ def pose_consistency(uv_cur, uv_ref, camera_cur: Camera, camera_ref: Camera, T_r
     xi = steps * scale
     Rp = R @ Rotation.from_rotvec(xi[:, :3]).as_matrix()
     tp = t + xi[:, 3:] @ R.T
-    sp = _signed_sampson(Rp, tp, K_cur_inv, K_ref_inv, xc, xr)  # (12, n)
+    sp = signed_sampson(Rp, tp, K_cur_inv, K_ref_inv, xc, xr)  # (12, n)
     J = ((sp[:6] - sp[6:]) / (2 * _STEP)).T  # (n, 6), per scaled unit
     if not np.all(np.isfinite(J)) or not np.all(np.isfinite(s)):
         return PoseConsistency.untested(n)
@@ -214,19 +202,7 @@ def pose_consistency(uv_cur, uv_ref, camera_cur: Camera, camera_ref: Camera, T_r
     u = t / b
     moved = u + R @ d[3:]  # translation direction after the correction (baseline units)
     direction = math.degrees(math.acos(np.clip(moved @ u / max(np.linalg.norm(moved), 1e-12), -1.0, 1.0)))
-    # the depth-relevant part: relative depth change per unit of the correction, averaged
-    ic, ir = xc[:, :2], xr[:, :2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = _depth(ic, ir, K_cur_inv, K_ref_inv, R, t)
-        Jz = _depth_jacobian_pose(ic, ir, K_cur_inv, K_ref_inv, R, t) / z[:, None]
-    good = np.isfinite(z) & (z > 0) & np.all(np.isfinite(Jz), axis=1)
-    shift, shift_sigma = 0.0, math.inf
-    if good.sum() >= _MIN_MATCHES:
-        g = np.median(Jz[good], axis=0)  # (6,) relative depth change per (rad, m)
-        shift = float(g @ d_full)
-        C_full = (Vv * scale[:, None]) @ C_v @ (Vv * scale[:, None]).T
-        shift_sigma = math.sqrt(max(float(g @ (inflation**2 * cov + C_full) @ g), 0.0))
-    return PoseConsistency(n, dof, chi2, factor, rot, direction, sigma, shift, shift_sigma, (d_v, S_v, C_v))
+    return PoseConsistency(n, dof, chi2, factor, rot, direction, sigma, (d_v, S_v, C_v))
 
 
 def _variance_factor(d_v, S_v, C_v, dof) -> float:

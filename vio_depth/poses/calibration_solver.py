@@ -8,7 +8,7 @@ poses ``B(t)`` interpolated from the sequence (:class:`~.timeline.PoseTimeline`)
     T_ref_cur(dt, X) = X^-1 B(t_r + dt)^-1 B(t_c + dt) X          X = T_b_c
 
 and the pair's error vector is the signed Sampson residual of each of its matches under
-``T_ref_cur`` (pixels, :func:`triangulation.consistency._signed_sampson`), passed through
+``T_ref_cur`` (pixels, :func:`triangulation.consistency.signed_sampson`), passed through
 a pseudo-Huber transform ``e(s) = s sqrt(2 / (1 + sqrt(1 + (s/k)^2)))`` (``e^2`` is the
 pseudo-Huber cost: quadratic below ``k``, linear above, smooth everywhere, so
 Levenberg-Marquardt sees no kink). One ``gtsam.CustomFactor`` per pair; its Jacobians are
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from triangulation.consistency import _signed_sampson
+from triangulation.consistency import signed_sampson
 from vio_core.camera import Camera
 from vio_core.checks import check_array
 
@@ -153,7 +153,7 @@ class PairModel:
         B = self.timeline.at(np.concatenate([self.pair.t_ref + dts, self.pair.t_cur + dts]))
         M = _invert(B[: len(dts)]) @ B[len(dts):]  # body cur -> body ref
         T = _invert(X) @ M @ X
-        return _signed_sampson(T[:, :3, :3], T[:, :3, 3], self.K_cur_inv, self.K_ref_inv, self.xc, self.xr)
+        return signed_sampson(T[:, :3, :3], T[:, :3, 3], self.K_cur_inv, self.K_ref_inv, self.xc, self.xr)
 
     def linearised(self, X: np.ndarray, dt: float, k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(e (N,), J_X (N, 6), J_dt (N, 1))``: the robust errors at ``(X, dt)`` and their
