@@ -70,6 +70,10 @@ class Dataset:
     max_depth: float
     frames: int | None = None
 
+    def folder(self, data: Path) -> Path:
+        """Where the dataset is: ``DATA/...`` under the shared data folder ``data``, else in the repository."""
+        return (data / self.path[5:]) if self.path.startswith("DATA/") else REPO / self.path
+
 
 DATASETS = {d.name: d for d in (
     Dataset("7scenes", "DATA/7scenes_redkitchen", "indoor", "simulated", 10.0, 300),
@@ -128,7 +132,7 @@ def main(argv=None) -> int:
             f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s}")
     for name in args.datasets.split(","):
         ds = DATASETS[name]
-        folder = (args.data / ds.path[5:]) if ds.path.startswith("DATA/") else REPO / ds.path
+        folder = ds.folder(args.data)
         if not folder.exists():
             print(f"\n{name}: {folder} missing, skipped")
             continue

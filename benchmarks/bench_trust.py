@@ -163,7 +163,7 @@ def main(argv=None) -> int:
         try:
             for name in args.datasets.split(","):
                 ds = DATASETS[name]
-                folder = (args.data / ds.path[5:]) if ds.path.startswith("DATA/") else REPO / ds.path
+                folder = ds.folder(args.data)
                 if not folder.exists():
                     print(f"\n{name}: {folder} missing, skipped")
                     continue
