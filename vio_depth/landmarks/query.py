@@ -10,8 +10,6 @@ landmarks' depths follow with a first-order sigma
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from triangulation.multiview import depth_in_view
@@ -24,13 +22,14 @@ from .covariance import prior_covariance as relative_prior_covariance
 from .resection import refine_pose
 from .types import LandmarkPoints
 
-if TYPE_CHECKING:  # the window calls this module; only its type is named here
-    from .window import LandmarkWindow
 
-
-def query_frame(window: "LandmarkWindow", camera: Camera, T_w_c, keypoints, matches=(), frame_id: int | None = None,
+def query_frame(window, camera: Camera, T_w_c, keypoints, matches=(), frame_id: int | None = None,
                 prior_covariance=None) -> LandmarkPoints:
-    """Metric landmark points seen by a frame (module docstring; :meth:`LandmarkWindow.query`)."""
+    """Metric landmark points seen by a frame (module docstring).
+
+    ``window`` is the :class:`~.window.LandmarkWindow` (read through its public methods
+    only); the other arguments as :meth:`~.window.LandmarkWindow.query`.
+    """
     kp = check_array("keypoints", keypoints, (None, 2))
     w = window
     lm = w.landmarks()
