@@ -38,6 +38,16 @@ class ShapeError(InputError, ValueError):
     """An array argument has the wrong shape, dtype or non-finite values."""
 
 
+class NumericalError(VioDepthError):
+    """A numerical failure of an estimator -- not the user's fault.
+
+    E.g. an indeterminant linear system while marginalising a keyframe of the landmark
+    window, or a refined estimate that is no longer finite. Where such a failure is an
+    expected outcome of the per-frame loop (the odometry loses track), the caller turns it
+    into a status with a reason; it is never an :class:`InputError`, which means bad input.
+    """
+
+
 class SettingsError(VioDepthError, ValueError):
     """A settings value is out of range (e.g. a negative threshold)."""
 

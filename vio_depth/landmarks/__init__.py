@@ -1,9 +1,13 @@
 """Multi-view metric landmarks over a sliding keyframe window, refined with gtsam.
 
-``tracks`` (feature tracks from pairwise matches), ``window`` (gtsam sliding window with
-pose priors, projection factors and marginalisation; per-frame query), ``resection``
-(pose refinement of a non-keyframe), ``estimator`` (per-frame driver: matching, keyframe
-choice), ``settings`` (pose-prior presets per dataset kind, window settings), ``types``.
+``tracks`` (feature tracks from pairwise matches), ``motion`` (the contract with whatever
+gives the keyframes' motion: :class:`MotionFactorSource`, the default
+:class:`PosePriorFactors`), ``window`` (gtsam sliding window: keyframes in, landmarks
+out), ``graph`` (its factors and Levenberg-Marquardt), ``marginalisation``,
+``covariance`` (the keyframe poses' joint covariance), ``query`` (a frame's metric
+points), ``resection`` (pose refinement of a non-keyframe), ``estimator`` (per-frame
+driver: matching, keyframe choice), ``settings`` (pose-prior presets per dataset kind,
+window settings), ``types``.
 N-view triangulation lives in :mod:`triangulation.multiview`.
 
 Typical use (one call per frame, features extracted once by the caller)::
@@ -13,11 +17,15 @@ Typical use (one call per frame, features extracted once by the caller)::
     out.points.uv, out.points.depth, out.points.sigma_depth   # for the rescaler
 """
 
+from .covariance import PoseCovariances, prior_covariance
 from .estimator import FrameLandmarks, LandmarkEstimator
+from .graph import WindowGraph
+from .marginalisation import marginalise_factors
+from .motion import MotionFactors, MotionFactorSource, PosePriorFactors
 from .resection import PoseRefinement, refine_pose
 from .settings import POSE_PRIOR_PRESETS, LandmarkSettings, PosePriorSettings, pose_prior_preset
 from .tracks import FrameMatches, Observations, TrackTable
-from .types import KeyframeInput, LandmarkPoints, MotionFactorSource, WindowUpdate
+from .types import KeyframeInput, LandmarkPoints, UpdateStatus, WindowUpdate, WorldLandmarks
 from .window import LandmarkWindow
 
 __all__ = [
@@ -30,11 +38,19 @@ __all__ = [
     "LandmarkSettings",
     "LandmarkWindow",
     "MotionFactorSource",
+    "MotionFactors",
     "Observations",
+    "PoseCovariances",
+    "PosePriorFactors",
     "PosePriorSettings",
     "PoseRefinement",
     "TrackTable",
+    "UpdateStatus",
+    "WindowGraph",
     "WindowUpdate",
+    "WorldLandmarks",
+    "marginalise_factors",
     "pose_prior_preset",
+    "prior_covariance",
     "refine_pose",
 ]

@@ -17,6 +17,7 @@ features (extracted once by the caller, as the pipeline does):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -24,9 +25,11 @@ from triangulation.multiview import TrackStatus, triangulate_tracks
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
 
+from .motion import MotionFactorSource
 from .settings import LandmarkSettings
 from .tracks import FrameMatches
-from .window import KeyframeInput, LandmarkPoints, LandmarkWindow, MotionFactorSource, WindowUpdate
+from .types import KeyframeInput, LandmarkPoints, WindowUpdate
+from .window import LandmarkWindow
 
 
 @dataclass(frozen=True)
@@ -40,7 +43,9 @@ class FrameLandmarks:
         matches: matches with the window's keyframes (summed).
         pair_relative_sigma: median predicted relative depth sigma of its two-view
             matches with the newest keyframe (inf when undefined).
-        update: the window update when it became a keyframe.
+        update: the window update when it became a keyframe -- or when the window refused it
+            (``update.ok`` False, with the reason: the window is unchanged and the frame is
+            not a keyframe).
         frame_matches: the frame's matches with the window's newest keyframes (newest first).
     """
 
@@ -59,7 +64,8 @@ class LandmarkEstimator:
     Args:
         settings: :class:`LandmarkSettings`.
         matcher: a ``matchers`` matcher (``match(features_a, features_b) -> Matches``).
-        motion_factors: optional :class:`MotionFactorSource` (IMU) for the window.
+        motion_factors: the window's :class:`~.motion.MotionFactorSource` (e.g. the odometry's
+            IMU factors), or None: pose priors from the frames' poses.
     """
 
     def __init__(self, settings: LandmarkSettings, matcher, motion_factors: MotionFactorSource | None = None):
@@ -119,6 +125,8 @@ class LandmarkEstimator:
         w = self.window
         if not w.keyframe_ids:
             update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
+            if not update.ok:
+                return FrameLandmarks(LandmarkPoints.empty(update.reason, T_w_c), False, "", 0, float("inf"), update)
             return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
                                   "first frame", 0, float("inf"), update)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
@@ -137,6 +145,8 @@ class LandmarkEstimator:
         if not reason:
             return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches))
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
+        if not update.ok:
+            return FrameLandmarks(points, False, "", n_matches, rel, update, tuple(matches))
         points = w.query(camera, None, kp, frame_id=frame_id)
         self._last_tracked = len(points)
         return FrameLandmarks(points, True, reason, n_matches, rel, update, tuple(matches))
@@ -145,21 +155,26 @@ class LandmarkEstimator:
         """The ``matchers.Features`` of a keyframe in the window (None for any other frame)."""
         return self._features.get(int(frame_id))
 
-    def insert_keyframe(self, frame_id, timestamp, camera, T_w_c, features, matches) -> WindowUpdate:
+    def insert_keyframe(self, frame_id, timestamp, camera, T_w_c, features, matches,
+                        initial: Any | None = None) -> WindowUpdate:
         """Insert a keyframe directly (e.g. the keyframes of a VIO initialisation), bypassing the policy.
 
         ``matches``: :class:`FrameMatches` with keyframes of the window; ``T_w_c`` its pose
-        prior (or None when a motion factor source gives it); ``features`` are kept for
-        matching later frames.
+        prior (or None when the motion factor source gives it); ``features`` are kept for
+        matching later frames (not when the window refused the keyframe: ``update.ok``
+        False); ``initial``: the motion factor source's own initial state for it
+        (:meth:`LandmarkWindow.add_keyframe`).
         """
         w = self.window
-        if getattr(w.motion_factors, "provides_poses", False):
+        if w.motion_factors.provides_poses:
             # the motion factor source gives every keyframe's pose, and the frames' pose priors are
             # its predictions in the window's current frame (VIO): they are not sequence poses that
             # the window corrects the way it corrected their keyframe's
             T_w_c = None
         update = w.add_keyframe(KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c,
-                                              np.asarray(features.keypoints, np.float64), matches))
+                                              np.asarray(features.keypoints, np.float64), matches), initial)
+        if not update.ok:
+            return update
         self._features[int(frame_id)] = features
         for k in list(self._features):  # features are kept only while their keyframe is in the window
             if k not in w.keyframe_ids:

@@ -1,10 +1,10 @@
-"""Domain types of the landmark window: keyframe input, motion-factor hook, per-frame points,
-window update diagnostics."""
+"""Domain types of the landmark window: keyframe input, per-frame points, the window's
+landmarks in the world, window update diagnostics (with :class:`UpdateStatus`)."""
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
@@ -21,7 +21,7 @@ class KeyframeInput:
         timestamp: seconds.
         camera: its intrinsics and distortion.
         T_w_c: (4, 4) camera-to-world pose prior mean, metres; None only with a
-            :class:`MotionFactorSource` that supplies the initial estimate.
+            :class:`~.motion.MotionFactorSource` that provides the poses.
         keypoints: (N, 2) raw pixels of its keypoints (extracted once).
         matches: :class:`FrameMatches` with keyframes of the window.
     """
@@ -37,32 +37,6 @@ class KeyframeInput:
         if self.T_w_c is not None:
             check_transform("T_w_c", self.T_w_c)
         check_array("keypoints", self.keypoints, (None, 2))
-
-
-class MotionFactorSource(Protocol):
-    """Adds motion factors between consecutive keyframes (e.g. gtsam ``CombinedImuFactor``).
-
-    With it, the pose-prior settings' ``absolute_on_every_keyframe`` is normally False: the
-    first keyframe is anchored by its prior and the source's factors carry the rest. A
-    source with a true attribute ``anchors_first_keyframe`` adds the first keyframe's prior
-    itself (in :meth:`factors` with ``previous`` None) and the window adds none. A source
-    with a method ``after_marginalisation(oldest_frame_id, estimate) -> gtsam.NonlinearFactorGraph``
-    adds factors on the window's oldest keyframe after each marginalisation (VIO: a gauge
-    prior on the unobservable yaw and position). A source with a true attribute
-    ``provides_poses`` gives every keyframe's initial pose (keyframes then carry no
-    ``T_w_c``): the pose priors of frames are its predictions in the window's current frame,
-    used as they are by :meth:`LandmarkWindow.query` (not corrected like a sequence pose).
-    """
-
-    def extra_keys(self, frame_id: int) -> list[int]:
-        """gtsam keys the source adds for a keyframe besides its pose ``X(frame_id)``
-        (e.g. velocity and bias); they are marginalised together with it."""
-
-    def factors(self, previous: "KeyframeInput | None", current: KeyframeInput, estimate):
-        """``(gtsam.NonlinearFactorGraph, gtsam.Values)``: factors linking ``previous``
-        (None for the first keyframe) and ``current``, and initial values of every new key
-        (including ``X(current.frame_id)`` when ``current.T_w_c`` is None). ``estimate`` is
-        the window's current ``gtsam.Values``."""
 
 
 @dataclass(frozen=True)
@@ -110,6 +84,43 @@ class LandmarkPoints:
         return cls(np.zeros((0, 2)), z, z.copy(), np.zeros(0, np.int64), T_w_c, associated, False, reason)
 
 
+class UpdateStatus(str, enum.Enum):
+    """What became of a keyframe offered to the window."""
+
+    #: inserted, the window refined (and the oldest keyframe marginalised beyond the window)
+    INSERTED = "inserted"
+    #: refused because the motion factor source had no factors for it (e.g. no IMU samples
+    #: between it and the previous keyframe): the window is unchanged, ``reason`` says why
+    REFUSED = "refused"
+
+
+@dataclass(frozen=True)
+class WorldLandmarks:
+    """The window's landmarks in the world frame (:meth:`LandmarkWindow.world_landmarks`).
+
+    Attributes:
+        ids: (N,) int, track ids (as in :attr:`LandmarkPoints.landmark_ids`), sorted.
+        points_w: (N, 3) metres, world points (at the window's refined keyframe poses).
+        covariance_w: (N, 3, 3) square metres, marginal covariance of each point (pixel
+            noise and the keyframe poses' uncertainty relative to the newest keyframe).
+        observations: (N,) int, inlier observations (keyframes) of each landmark.
+    """
+
+    ids: np.ndarray
+    points_w: np.ndarray
+    covariance_w: np.ndarray
+    observations: np.ndarray
+
+    def __post_init__(self):
+        n = len(check_array("ids", self.ids, (None,), dtype="int"))
+        check_array("points_w", self.points_w, (n, 3), finite=True)
+        check_array("covariance_w", self.covariance_w, (n, 3, 3), finite=True)
+        check_array("observations", self.observations, (n,), dtype="int")
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
 @dataclass(frozen=True)
 class WindowUpdate:
     """What one keyframe insertion did (for diagnostics).
@@ -125,6 +136,7 @@ class WindowUpdate:
         pose_shift_sigmas: largest move of a keyframe pose from its prior, in units of the
             absolute prior sigmas (RMS over the 6 components): above ~3 the images and the
             stated pose uncertainty disagree.
+        status: :class:`UpdateStatus`; reason: why it was refused ("" when inserted).
     """
 
     frame_id: int
@@ -138,3 +150,15 @@ class WindowUpdate:
     lm_error_after: float = float("nan")
     median_residual_px: float = float("nan")
     pose_shift_sigmas: float = float("nan")
+    status: UpdateStatus = UpdateStatus.INSERTED
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """The keyframe was inserted."""
+        return self.status == UpdateStatus.INSERTED
+
+    @classmethod
+    def refused(cls, frame_id: int, keyframes: int, reason: str) -> "WindowUpdate":
+        """The keyframe ``frame_id`` was refused (``reason``); the window (``keyframes``) is unchanged."""
+        return cls(int(frame_id), keyframes, 0, 0, 0, None, status=UpdateStatus.REFUSED, reason=reason)

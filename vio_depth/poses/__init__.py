@@ -17,7 +17,7 @@ module             job
 =================  ===========================================================================
 """
 
-from .base import FramePose, PoseSource, RelativePose, TrackingPoseSource
+from .base import FramePose, PoseSource, PoseStatus, RelativePose, TrackingPoseSource
 from .calibration import (
     PoseCalibration,
     PoseCalibrationSettings,
@@ -53,6 +53,7 @@ __all__ = [
     "PoseUncertainty",
     "camera_twist",
     "FramePose",
+    "PoseStatus",
     "GroundTruthPoseSettings",
     "GroundTruthPoses",
     "ImuIntegration",

@@ -13,6 +13,7 @@ poses, and records the source's own :class:`FramePose` of the frame.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -49,6 +50,24 @@ class PoseSource(Protocol):
         """Relative pose between ``keyframe`` (earlier) and ``current``."""
 
 
+class PoseStatus(str, enum.Enum):
+    """A tracking pose source's state at a frame (:attr:`FramePose.status`).
+
+    The odometry's own states (``vio_depth.vio.VioStatus``, same strings), and two of the
+    pose source's: ``retroactive`` (a frame seen again, posed after it was first processed)
+    and ``unknown`` (a frame the source never tracked).
+    """
+
+    INITIALISING = "initialising"
+    CONVERGING = "converging"
+    TRACKING = "tracking"
+    STILL = "still"
+    IMU_ONLY = "imu_only"
+    LOST = "lost"
+    RETROACTIVE = "retroactive"
+    UNKNOWN = "unknown"
+
+
 @dataclass(frozen=True)
 class FramePose:
     """A tracking pose source's own estimate of one frame.
@@ -58,15 +77,20 @@ class FramePose:
         covariance: (6, 6) covariance of ``T_w_c`` relative to the source's newest keyframe
             (right perturbation, rotation rad first, then metres), or None.
         ok: True when ``T_w_c`` is trusted; otherwise the frame has no pose.
-        status: the source's state at this frame (e.g. ``tracking``, ``initialising``).
+        status: :class:`PoseStatus`, the source's state at this frame, or None when it
+            states none (its string value is accepted and converted; an unknown one raises
+            ValueError).
         reason: why there is no pose, or what is special about it ("" when nothing).
     """
 
     T_w_c: np.ndarray | None
     covariance: np.ndarray | None = None
     ok: bool = True
-    status: str = ""
+    status: PoseStatus | None = None
     reason: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "status", None if self.status in (None, "") else PoseStatus(self.status))
 
 
 @runtime_checkable

@@ -22,7 +22,7 @@ from .alignment import Alignment, align, estimate_gyro_bias
 from .estimator import VioEstimator, VioFrame, VioStatus
 from .history import PoseHistory, PoseRecord
 from .imu_factors import ImuFactors, KeyframeState
-from .initializer import Candidate, Initializer, InitResult
+from .initializer import Candidate, Initializer, InitKind, InitResult
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 from .source import VioPoseSource
 
@@ -30,6 +30,7 @@ __all__ = [
     "Alignment",
     "Candidate",
     "ImuFactors",
+    "InitKind",
     "InitResult",
     "Initializer",
     "KeyframeState",

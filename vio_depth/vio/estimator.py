@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 
 from matchers import Features, Matcher
 from vio_core.camera import Camera
-from vio_core.errors import InputError
+from vio_core.errors import InputError, NumericalError
 from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
@@ -53,7 +53,7 @@ from ..landmarks import LandmarkEstimator
 from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
-from .initializer import Initializer, InitResult
+from .initializer import Initializer, InitKind, InitResult
 from .matching import EpipolarGatedMatcher, rotation_free_flow
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ class VioFrame:
         keyframe: the frame became a keyframe of the window.
         landmarks: landmarks the frame's pose was refined against.
         velocity_w: (3,) m/s IMU velocity of the newest keyframe. accel_bias / gyro_bias: its biases.
-        initialised: "static" / "dynamic" on the frame that completed an initialisation.
+        initialised: the :class:`InitKind` on the frame that completed an initialisation, else None.
     """
 
     frame_id: int
@@ -94,7 +94,7 @@ class VioFrame:
     velocity_w: np.ndarray | None = None
     accel_bias: np.ndarray | None = None
     gyro_bias: np.ndarray | None = None
-    initialised: str = ""
+    initialised: InitKind | None = None
 
     @property
     def ok(self) -> bool:
@@ -195,23 +195,25 @@ class VioEstimator:
         s = self.settings
         self.session += 1
         self.landmarks = LandmarkEstimator(s.window, self._gate, self.factors)
-        self.factors.start = res.states[0]
-        self.factors.guesses = {k.frame_id: st for k, st in zip(res.keyframes[1:], res.states[1:])}
         T_i_c = invert_transform(self.factors.T_c_i)
         try:
             for k, st in zip(res.keyframes, res.states):
                 self._times[k.frame_id] = k.t
                 matches = tuple(m for m in k.matches if m.keyframe in self.landmarks.window.keyframe_ids)
-                upd = self.landmarks.insert_keyframe(k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches)
+                # the initialisation's state: the first keyframe's prior, the others' initial values
+                upd = self.landmarks.insert_keyframe(k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches,
+                                                     initial=st)
+                if not upd.ok:
+                    self.landmarks = None
+                    return f"the window could not start: {upd.reason}"
                 log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, "
                           "graph error %.1f -> %.1f", k.frame_id, upd.landmarks, upd.observations,
                           upd.median_residual_px, upd.lm_error_before, upd.lm_error_after)
-        except (InputError, RuntimeError) as exc:
+        except NumericalError as exc:
             self.landmarks = None
             return f"the window could not start: {exc}"
-        self.factors.guesses = {}
         why = self._health()
-        if not why and res.kind == "dynamic" and len(res.keyframes) > 1:
+        if not why and res.kind == InitKind.DYNAMIC and len(res.keyframes) > 1:
             w = self.landmarks.window
             p_win = np.stack([w.pose(k.frame_id)[:3, 3] for k in res.keyframes])
             p_al = np.stack([(st.T_w_i @ T_i_c)[:3, 3] for st in res.states])
@@ -265,7 +267,7 @@ class VioEstimator:
         A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
         C = A @ C_fb @ A.T
         S = w.joint_covariance([a, b])
-        C_ab = PoseHistory._pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
+        C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
         C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
         return T_w_f, 0.5 * (C + C.T)
 
@@ -296,12 +298,13 @@ class VioEstimator:
                 self.initializer.refuse(why, drop_oldest=False)
                 return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
             al = res.alignment
-            log.info("vio: %s initialisation at frame %d (%d keyframes%s)", res.kind, frame_id, len(res.keyframes),
+            log.info("vio: %s initialisation at frame %d (%d keyframes%s)", res.kind.value, frame_id,
+                     len(res.keyframes),
                      "" if al is None else f"; scale {al.scale:.4g} +- {al.scale_sigma:.1%}, gravity error "
                                            f"{al.gravity_error:+.2f} m/s^2, excitation {al.excitation:.2f} m/s^2")
             self.last_init = res
             st = self._newest_state()
-            return self._trusted(VioFrame(frame_id, VioStatus.TRACKING, f"{res.kind} initialisation",
+            return self._trusted(VioFrame(frame_id, VioStatus.TRACKING, f"{res.kind.value} initialisation",
                                           self.history.pose(frame_id), np.zeros((6, 6)), True, 0, st.velocity_w,
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
@@ -392,8 +395,10 @@ class VioEstimator:
                                      + [(s.predict_velocity_sigma * dt) ** 2] * 3)
         try:
             fl = self.landmarks.process(frame_id, t, camera, T_prior, features, prior_covariance=C_prior)
-        except (InputError, RuntimeError) as exc:
+        except NumericalError as exc:
             return self._lose(frame_id, f"the window update failed: {exc}")
+        if fl.update is not None and not fl.update.ok:  # the IMU could not link the keyframe
+            return self._lose(frame_id, f"the window update failed: {fl.update.reason}")
         self.last_update = fl.update
         if fl.keyframe:
             why = self._health()

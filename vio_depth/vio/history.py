@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vio_core.checks import check_array, check_transform
+from vio_core.errors import ShapeError
 from vio_core.geometry import invert_transform
 
 from ..poses import adjoint
@@ -77,7 +78,7 @@ class PoseHistory:
                 self._frames[f] = PoseRecord(session, f, np.eye(4), np.zeros((6, 6)))
         for k in range(1, len(ids)):
             self._links[ids[k]] = (ids[k - 1], invert_transform(poses[k - 1]) @ poses[k],
-                                   self._pair_covariance(poses[k - 1], poses[k], S, k - 1, k))
+                                   self.pair_covariance(poses[k - 1], poses[k], S, k - 1, k))
         self._window = (ids, S.copy())
         self._trim()
 
@@ -118,8 +119,22 @@ class PoseHistory:
         return None if r is None else r.session
 
     @staticmethod
-    def _pair_covariance(T_a, T_b, S, i: int, j: int) -> np.ndarray:
-        """Covariance of ``T_a^-1 T_b`` (in b) from the joint covariance ``S`` of views ``i``, ``j``."""
+    def pair_covariance(T_a, T_b, S, i: int, j: int) -> np.ndarray:
+        """(6, 6) covariance of the relative pose ``T_a^-1 T_b`` (right perturbation in b).
+
+        Args:
+            T_a, T_b: (4, 4) camera-to-world poses of two keyframes, metres.
+            S: (6V, 6V) their joint covariance with other views (world right perturbations,
+                rotation rad first, then translation m; e.g. ``LandmarkWindow.joint_covariance``).
+            i, j: the rows (in 6-blocks) of ``T_a`` and ``T_b`` in ``S``.
+
+        Returns:
+            (6, 6) covariance, rotation rad^2 first, then translation m^2, symmetric.
+        """
+        T_a, T_b = check_array("T_a", T_a, (4, 4)), check_array("T_b", T_b, (4, 4))
+        S = check_array("S", S, (None, None))
+        if S.shape[0] != S.shape[1] or S.shape[0] % 6 or not (0 <= i < S.shape[0] // 6 and 0 <= j < S.shape[0] // 6):
+            raise ShapeError(f"pair_covariance: S must be (6V, 6V) with views {i} and {j} in it, got {S.shape}")
         Sa, Sb = S[6 * i:6 * i + 6, 6 * i:6 * i + 6], S[6 * j:6 * j + 6, 6 * j:6 * j + 6]
         Sab = S[6 * i:6 * i + 6, 6 * j:6 * j + 6]
         A = adjoint(invert_transform(T_b) @ T_a)
@@ -140,7 +155,7 @@ class PoseHistory:
             ids, S = self._window
             if ra in ids and rb in ids:
                 T_a, T_b = self._kf_pose[ra], self._kf_pose[rb]
-                return invert_transform(T_a) @ T_b, self._pair_covariance(T_a, T_b, S, ids.index(ra), ids.index(rb))
+                return invert_transform(T_a) @ T_b, self.pair_covariance(T_a, T_b, S, ids.index(ra), ids.index(rb))
         lo, hi = min(ra, rb), max(ra, rb)
         T = np.eye(4)  # T_lo_hi, built from hi downwards: T = T_{k-1,k} T
         C = np.zeros((6, 6))  # covariance in hi's frame
@@ -173,7 +188,7 @@ class PoseHistory:
         ids, S = self._window
         a, b = ids[0], ids[-1]
         T_a, T_b = self._kf_pose[a], self._kf_pose[b]
-        C = self._pair_covariance(T_a, T_b, S, 0, len(ids) - 1)
+        C = self.pair_covariance(T_a, T_b, S, 0, len(ids) - 1)
         d_b = T_b[:3, :3].T @ (T_b[:3, 3] - T_a[:3, 3])  # the displacement in b's frame (where the error lives)
         n = float(np.linalg.norm(d_b))
         u = d_b / n if n > 0 else np.zeros(3)

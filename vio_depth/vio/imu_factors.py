@@ -1,4 +1,5 @@
-"""IMU factors between the keyframes of the landmark window (its ``MotionFactorSource``).
+"""IMU factors between the keyframes of the landmark window (its
+:class:`~vio_depth.landmarks.MotionFactorSource`).
 
 Every keyframe ``f`` of the window has, besides its camera pose ``X(f)`` (what the
 projection factors see), three keys added here: the IMU pose ``I(f)``, the IMU velocity
@@ -12,10 +13,11 @@ consecutive keyframes:
   pose directly, but it leaves out the lever arm's angular-acceleration term: on the
   street sample, 1.3 m from the IMU, that is up to 0.6 m/s^2 during the turn.)
 
-The first keyframe of a window gets the priors of the initialisation
-(:class:`KeyframeState`): its yaw and position fix the gauge (they are unobservable), its
-roll and pitch, velocity and biases carry the initialisation's uncertainty. The window
-marginalises these factors with the keyframe, as all others (:mod:`vio_depth.landmarks.window`);
+The first keyframe of a window gets the priors of the initialisation (its
+:class:`KeyframeState`, handed to :meth:`ImuFactors.factors` as ``initial``): its yaw and
+position fix the gauge (they are unobservable), its roll and pitch, velocity and biases
+carry the initialisation's uncertainty. The window marginalises these factors with the
+keyframe into linear marginal factors (``keep_marginals``; :mod:`vio_depth.landmarks.marginalisation`);
 after each marginalisation the new oldest keyframe gets a gauge prior on its yaw and
 position (:meth:`ImuFactors.after_marginalisation`): without it the window drifted by
 degrees and decimetres along these unobservable directions at every update (room sample),
@@ -29,10 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from vio_core.checks import check_array, check_transform
-from vio_core.errors import InputError
+from vio_core.errors import InputError, NumericalError
 from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
+from ..landmarks import KeyframeInput, MotionFactors
 from ..poses import VioSettings, adjoint, preintegrate, preintegration_params
 
 #: stiffness of the camera-IMU mounting factor (rad, m)
@@ -107,8 +110,10 @@ class ImuFactors:
         settings: :class:`~vio_depth.poses.VioSettings` (``imu``: noise scales, sample gaps).
     """
 
-    anchors_first_keyframe = True
+    #: every keyframe's pose comes from here (the IMU state), the frames' priors are IMU predictions
     provides_poses = True
+    #: the IMU chain's information is kept when a keyframe is marginalised
+    keep_marginals = True
 
     def __init__(self, imu: ImuData, settings: VioSettings):
         self.imu = imu
@@ -116,10 +121,6 @@ class ImuFactors:
         self.T_c_i = check_transform("imu.T_c_i", imu.T_c_i)
         self.T_i_c = invert_transform(self.T_c_i)
         self.params = preintegration_params(imu, settings.imu)
-        #: prior of the next window's first keyframe (set by the estimator before it)
-        self.start: KeyframeState | None = None
-        #: initial values of keyframes (from an initialisation), by frame id
-        self.guesses: dict[int, KeyframeState] = {}
 
     def update_samples(self, imu: ImuData) -> None:
         """Use ``imu`` (the samples so far plus newer ones) from now on; same calibration."""
@@ -129,12 +130,18 @@ class ImuFactors:
 
     # ------------------------------------------------------------------ states
     def state_of(self, estimate, frame_id: int, t: float) -> KeyframeState:
-        """The navigation state of keyframe ``frame_id`` in a window estimate (``gtsam.Values``)."""
+        """The navigation state of keyframe ``frame_id`` in a window estimate (``gtsam.Values``).
+
+        Raises:
+            NumericalError: the estimate is not finite.
+        """
         T = estimate.atPose3(imu_key(frame_id)).matrix()
         v = np.asarray(estimate.atVector(velocity_key(frame_id)), float).reshape(3)
         b = estimate.atConstantBias(bias_key(frame_id))
-        return KeyframeState(t, T, v, np.asarray(b.accelerometer(), float).reshape(3),
-                             np.asarray(b.gyroscope(), float).reshape(3))
+        a, g = np.asarray(b.accelerometer(), float).reshape(3), np.asarray(b.gyroscope(), float).reshape(3)
+        if not all(np.all(np.isfinite(x)) for x in (T, v, a, g)):
+            raise NumericalError(f"vio: the window's state of keyframe {frame_id} is not finite")
+        return KeyframeState(t, T, v, a, g)
 
     def preintegrate(self, state: KeyframeState, t1: float):
         """``(pim, "")`` from ``state.t`` to ``t1`` with the state's biases, or ``(None, reason)``."""
@@ -190,16 +197,33 @@ class ImuFactors:
     def extra_keys(self, frame_id: int) -> list[int]:
         return [imu_key(frame_id), velocity_key(frame_id), bias_key(frame_id)]
 
-    def factors(self, previous, current, estimate):
-        """Factors and initial values for keyframe ``current`` (see the module docstring)."""
+    def factors(self, previous: KeyframeInput | None, current: KeyframeInput, estimate,
+                initial: KeyframeState | None = None) -> MotionFactors:
+        """Factors and initial values for keyframe ``current`` (see the module docstring).
+
+        Args:
+            previous: the window's newest keyframe, or None for its first keyframe.
+            current: the new keyframe.
+            estimate: the window's ``gtsam.Values``.
+            initial: ``current``'s state from an initialisation: the first keyframe's prior
+                (required), another keyframe's initial value (else the IMU prediction from
+                ``previous``).
+
+        Returns:
+            :class:`~vio_depth.landmarks.MotionFactors`; failed (with the reason) when the IMU
+            cannot link ``previous`` and ``current`` (e.g. a gap in the samples).
+
+        Raises:
+            InputError: no ``initial`` state (at ``current``'s time) for a first keyframe.
+        """
         import gtsam
         from gtsam.symbol_shorthand import X
 
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         f = int(current.frame_id)
-        guess = self.guesses.pop(f, None)
+        guess = initial
         if previous is None:
-            start = guess if guess is not None else self.start
+            start = guess
             if start is None or abs(start.t - current.timestamp) > 1e-6:
                 raise InputError(f"vio: no initial state for the first keyframe {f} of the window")
             graph.add(gtsam.PriorFactorPose3(imu_key(f), gtsam.Pose3(start.T_w_i),
@@ -216,7 +240,7 @@ class ImuFactors:
             prev_state = self.state_of(estimate, p, previous.timestamp)
             pim, reason = self.preintegrate(prev_state, current.timestamp)
             if pim is None:
-                raise InputError(f"vio: no IMU factor between keyframes {p} and {f}: {reason}")
+                return MotionFactors.failed(f"vio: no IMU factor between keyframes {p} and {f}: {reason}")
             graph.add(gtsam.CombinedImuFactor(imu_key(p), velocity_key(p), imu_key(f), velocity_key(f),
                                               bias_key(p), bias_key(f), pim))
             if guess is not None:
@@ -224,7 +248,7 @@ class ImuFactors:
             else:
                 state, _, reason = self.predict(prev_state, current.timestamp)
                 if state is None:
-                    raise InputError(f"vio: no IMU prediction for keyframe {f}: {reason}")
+                    return MotionFactors.failed(f"vio: no IMU prediction for keyframe {f}: {reason}")
         graph.add(gtsam.BetweenFactorPose3(X(f), imu_key(f), gtsam.Pose3(self.T_c_i),
                                            gtsam.noiseModel.Isotropic.Sigma(6, _MOUNT_SIGMA)))
         values.insert(X(f), gtsam.Pose3(state.T_w_i @ self.T_i_c))
@@ -232,4 +256,4 @@ class ImuFactors:
         values.insert(velocity_key(f), np.asarray(state.velocity_w, float))
         values.insert(bias_key(f), gtsam.imuBias.ConstantBias(np.asarray(state.accel_bias, float),
                                                                np.asarray(state.gyro_bias, float)))
-        return graph, values
+        return MotionFactors(graph, values)

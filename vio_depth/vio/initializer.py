@@ -24,6 +24,7 @@ Every frame offered before success gets a reason (:class:`InitResult`): still wa
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -55,13 +56,20 @@ class Candidate:
     matches: tuple[FrameMatches, ...] = ()
 
 
+class InitKind(str, enum.Enum):
+    """How the odometry was initialised (module docstring)."""
+
+    STATIC = "static"
+    DYNAMIC = "dynamic"
+
+
 @dataclass(frozen=True)
 class InitResult:
     """Outcome of offering one frame.
 
     Attributes:
         ok: True when the estimator can start.
-        kind: "static" or "dynamic" when ok.
+        kind: :class:`InitKind` when ok, else None.
         reason: why not yet (waiting, or the last refusal); "" when ok.
         keyframes: the keyframes that start the window (oldest first), with their states.
         states: the :class:`KeyframeState` of each keyframe (the first one's sigmas are its prior).
@@ -71,7 +79,7 @@ class InitResult:
     """
 
     ok: bool
-    kind: str = ""
+    kind: InitKind | None = None
     reason: str = ""
     keyframes: tuple[Candidate, ...] = ()
     states: tuple[KeyframeState, ...] = ()
@@ -153,7 +161,7 @@ class Initializer:
                               tilt_sigma=max(tilt, 1e-3), yaw_sigma=s.gauge_yaw_sigma_rad,
                               position_sigma=s.gauge_sigma_m, velocity_sigma=s.velocity_sigma,
                               accel_bias_sigma=s.imu.accel_bias_prior_sigma, gyro_bias_sigma=g_sigma)
-        return InitResult(True, "static", keyframes=(replace(cur, matches=()),), states=(state,))
+        return InitResult(True, InitKind.STATIC, keyframes=(replace(cur, matches=()),), states=(state,))
 
     def _dynamic(self) -> InitResult:
         s = self.settings
@@ -180,7 +188,7 @@ class Initializer:
                                         gyro_bias_sigma=max(s.imu.gyro_bias_prior_sigma * 0.5, 1e-3)))
         t0 = cands[0].t
         frames = tuple((f, t) for f, t in self._w.frames if t > t0 and f not in ids)
-        return InitResult(True, "dynamic", keyframes=tuple(cands), states=tuple(states), frames=frames, sfm=sfm,
+        return InitResult(True, InitKind.DYNAMIC, keyframes=tuple(cands), states=tuple(states), frames=frames, sfm=sfm,
                           alignment=al)
 
     # ------------------------------------------------------------------ per frame

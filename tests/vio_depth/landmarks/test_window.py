@@ -19,9 +19,11 @@ from vio_depth.landmarks import (
     LandmarkEstimator,
     LandmarkSettings,
     LandmarkWindow,
+    MotionFactors,
     PosePriorSettings,
     pose_prior_preset,
 )
+from vio_depth.landmarks.motion import pose_noise
 
 from .synthetic import IdMatcher, make_scene
 
@@ -157,8 +159,12 @@ def test_query_refines_a_non_keyframe_pose():
 
 
 class _Odometry:
-    """A MotionFactorSource stand-in for IMU preintegration: between-factors from the true
-    relative poses (what a VIO would add between keyframes)."""
+    """A MotionFactorSource stand-in for IMU preintegration: the first keyframe anchored by
+    its pose prior, then between-factors from the true relative poses (what a VIO would add
+    between keyframes), kept through marginalisation."""
+
+    provides_poses = False
+    keep_marginals = True
 
     def __init__(self, scene):
         self.scene = scene
@@ -166,17 +172,26 @@ class _Odometry:
     def extra_keys(self, frame_id):
         return []
 
-    def factors(self, previous, current, estimate):
+    def factors(self, previous, current, estimate, initial=None):
         from gtsam.symbol_shorthand import X
 
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         T = self.scene.T_w_c
-        if previous is not None:
-            rel = invert_transform(T[previous.frame_id]) @ T[current.frame_id]
+        f = current.frame_id
+        if previous is None:
+            p = pose_prior_preset("imu")
+            graph.add(gtsam.PriorFactorPose3(X(f), gtsam.Pose3(current.T_w_c),
+                                             pose_noise(np.radians(p.absolute_rotation_deg), p.absolute_translation_m)))
+            values.insert(X(f), gtsam.Pose3(current.T_w_c))
+        else:
+            rel = invert_transform(T[previous.frame_id]) @ T[f]
             noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3] * 3 + [2e-3] * 3))
-            graph.add(gtsam.BetweenFactorPose3(X(previous.frame_id), X(current.frame_id), gtsam.Pose3(rel), noise))
-            values.insert(X(current.frame_id), gtsam.Pose3(estimate.atPose3(X(previous.frame_id)).matrix() @ rel))
-        return graph, values
+            graph.add(gtsam.BetweenFactorPose3(X(previous.frame_id), X(f), gtsam.Pose3(rel), noise))
+            values.insert(X(f), gtsam.Pose3(estimate.atPose3(X(previous.frame_id)).matrix() @ rel))
+        return MotionFactors(graph, values)
+
+    def after_marginalisation(self, oldest, estimate):
+        return gtsam.NonlinearFactorGraph()
 
 
 def test_motion_factor_source_replaces_pose_priors():
