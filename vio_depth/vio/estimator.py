@@ -50,11 +50,12 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import LandmarkEstimator
-from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
+from ..poses import adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitResult
 from .matching import EpipolarGatedMatcher, rotation_free_flow
+from .settings import VioSettings
 
 log = logging.getLogger(__name__)
 
