@@ -11,19 +11,17 @@ from pathlib import Path
 
 from vio_core.errors import InputError, lookup
 
-from . import asl, bag, ddad, kitti, native, sevenscenes, tum
+from .asl import FORMAT as ASL
+from .bag import FORMAT as BAG
 from .base import Sequence, SequenceFormat
+from .ddad import FORMAT as DDAD
+from .kitti import FORMAT as KITTI_RAW
+from .native import FORMAT as NATIVE
+from .sevenscenes import FORMAT as SEVEN_SCENES
+from .tum import FORMAT as TUM_RGBD
 
 #: every format, in detection order
-FORMATS: tuple[SequenceFormat, ...] = (
-    asl.FORMAT,
-    bag.FORMAT,
-    ddad.FORMAT,
-    kitti.FORMAT,
-    native.FORMAT,
-    sevenscenes.FORMAT,
-    tum.FORMAT,
-)
+FORMATS: tuple[SequenceFormat, ...] = (ASL, BAG, DDAD, KITTI_RAW, NATIVE, SEVEN_SCENES, TUM_RGBD)
 
 _BY_NAME: dict[str, SequenceFormat] = {fmt.name: fmt for fmt in FORMATS}
 
