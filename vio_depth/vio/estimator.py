@@ -108,7 +108,7 @@ class VioEstimator:
     Args:
         imu: the IMU samples (with ``T_c_i``, noise densities, gravity).
         matcher: matches the frames' features (the same matcher extracted them).
-        settings: :class:`~vio_depth.poses.VioSettings`.
+        settings: :class:`~vio_depth.vio.VioSettings`.
     """
 
     def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings()):
