@@ -37,7 +37,8 @@ import numpy as np
 
 from vio_depth.evaluation import evaluate_propagation, ground_truth_frames
 from vio_depth.io import open_sequence
-from vio_depth.poses import POSE_PRESETS, ImuPoseSettings
+from vio_depth.pipeline import POSE_PRESETS
+from vio_depth.poses import ImuPoseSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 EUROC = ROOT / ".." / "shared" / "data" / "euroc_v101_static"

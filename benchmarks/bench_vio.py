@@ -81,7 +81,7 @@ def euroc_static_start() -> list[str]:
     ground truth, how far the still camera's estimate wanders."""
     from matchers import create_matcher
     from vio_depth.io import open_sequence
-    from vio_depth.poses import POSE_PRESETS
+    from vio_depth.pipeline import POSE_PRESETS
     from vio_depth.vio import VioPoseSource
 
     seq = open_sequence(EUROC)

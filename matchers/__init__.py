@@ -22,7 +22,6 @@ from .registry import (
     MatcherSettings,
     available_matchers,
     create_matcher,
-    register_matcher,
     uses_device,
 )
 from .sift import SiftMatcher, SiftSettings
@@ -38,6 +37,5 @@ __all__ = [
     "SiftSettings",
     "available_matchers",
     "create_matcher",
-    "register_matcher",
     "uses_device",
 ]

@@ -1,4 +1,4 @@
-"""One registry of matcher presets, chosen by name on the CLI and in the API.
+"""The matcher presets, chosen by name on the CLI and in the API.
 
 A preset is a settings object (:class:`~matchers.sift.SiftSettings` or
 :class:`~matchers.learned_settings.LearnedMatcherSettings`); :func:`create_matcher` builds
@@ -9,7 +9,6 @@ imports torch or kornia; building a learned matcher does.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable
 
 from vio_core.errors import SettingsError
 from vio_core.settings import Presets
@@ -34,24 +33,8 @@ MATCHER_PRESETS: Presets = Presets("matcher", {
     "xfeat+lighterglue": "XFeat + LighterGlue (kornia, bundled weights)",
 })
 
-# settings type -> factory(settings) -> Matcher
-_FACTORIES: dict[type, Callable[..., Matcher]] = {
-    SiftSettings: SiftMatcher,
-    LearnedMatcherSettings: LearnedMatcher,
-}
-
-
-def register_matcher(name: str, settings, factory: Callable[..., Matcher] | None = None) -> None:
-    """Add preset ``name``; a new settings type needs its ``factory(settings) -> Matcher``."""
-    if factory is not None:
-        _FACTORIES[type(settings)] = factory
-    elif type(settings) not in _FACTORIES:
-        raise SettingsError(f"matcher preset {name!r}: no factory for {type(settings).__name__}")
-    MATCHER_PRESETS.add(name, settings)
-
-
 def available_matchers() -> list[str]:
-    """Names of all registered presets (learned ones may still need their extras)."""
+    """Names of all presets (learned ones may still need their extras)."""
     return sorted(MATCHER_PRESETS)
 
 
@@ -81,7 +64,10 @@ def create_matcher(settings: "MatcherSettings | str", device: str | None = None)
         elif device != "cpu":
             raise SettingsError(f"device {device!r} does not apply to the {type(settings).__name__} matcher "
                                 "(it runs on the CPU)")
-    factory = _FACTORIES.get(type(settings))
-    if factory is None:
-        raise SettingsError(f"no matcher for settings of type {type(settings).__name__}")
-    return factory(settings)
+    match settings:
+        case SiftSettings():
+            return SiftMatcher(settings)
+        case LearnedMatcherSettings():
+            return LearnedMatcher(settings)
+    raise SettingsError(f"no matcher for settings of type {type(settings).__name__}; valid: SiftSettings, "
+                        f"LearnedMatcherSettings (presets {', '.join(MATCHER_PRESETS)})")

@@ -82,12 +82,6 @@ class Presets(Mapping[str, T], Generic[T]):
     def describe(self, name: str) -> str:
         return self.descriptions.get(name, "")
 
-    def add(self, name: str, value: T, description: str = "") -> None:
-        """Register another preset (extensions; the built-in ones are set at import)."""
-        self._presets[name] = value
-        if description:
-            self.descriptions[name] = description
-
 
 # --------------------------------------------------------------------------- overrides
 def require_positive(settings, *names: str, finite: bool = True) -> None:

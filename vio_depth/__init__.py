@@ -32,8 +32,7 @@ from ._version import __version__
 from .disparity import DisparitySettings, create_disparity_source
 from .frame import Frame, ImuData
 from .io import Sequence, open_sequence
-from .pipeline import FrameResult, FrameStatus, FrameStream, Pipeline, PipelineSettings
-from .poses import create_pose_source
+from .pipeline import FrameResult, FrameStatus, FrameStream, Pipeline, PipelineSettings, create_pose_source
 from .run import RunSettings, RunSummary, dump_config, load_config, run_sequence
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -25,8 +25,7 @@ from vio_core.settings import override
 from ..baselines import iter_paper_reference, paper_reference_preset
 from ..evaluation import Task, compute_metrics, oracle_fit, point_depth_errors
 from ..frame import Frame
-from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings
-from ..poses import create_pose_source
+from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings, create_pose_source
 from ..rescale import metric_depth, sample_bilinear
 from ..run import backfill_leading_frames
 from .context import TaskContext, open_task

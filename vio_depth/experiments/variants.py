@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from matchers import MATCHER_PRESETS
 from vio_core.errors import SettingsError
 
-from ..poses import POSE_PRESETS
+from ..pipeline import POSE_PRESETS
 
 
 class VariantKind(str, enum.Enum):

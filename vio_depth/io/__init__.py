@@ -1,9 +1,10 @@
-"""Reading sequences: the :class:`Sequence` contract, the format registry and every loader.
+"""Reading sequences: the :class:`Sequence` contract, the table of formats and every loader.
 
 ==================  ============================================================================
 module              job
 ==================  ============================================================================
-``base``            :class:`Sequence`, :func:`register_format`, :func:`open_sequence`
+``base``            :class:`Sequence`, :class:`SequenceFormat`
+``formats``         :data:`FORMATS` (every loader's ``FORMAT``, in detection order), :func:`open_sequence`
 ``tables``          the one line-based text-table reader (``file:line`` errors), TUM trajectories
 ``images``          reading images (bytes by Python, decoding by OpenCV)
 ``decode``          decoding with the codec's warnings as errors (corrupt JPEG, damaged PNG)
@@ -20,20 +21,19 @@ module              job
                     and ``inspect``, ``bag_messages`` the message conversions
 ``kalibr``          Kalibr ``camchain.yaml`` / ``imu.yaml`` (``--calib``, ``--imu-calib``) for any input
 ==================  ============================================================================
-
-Importing this package registers every built-in format.
 """
 
-from . import asl, bag, ddad, kitti, kitti_split, native, sevenscenes, tum  # noqa: F401  (importing registers the formats)
 from .asl import AslSequence
 from .asl_writer import AslWriter
 from .bag import BagSequence, BagSettings, open_bag
-from .base import Sequence, SequenceFormat, available_formats, open_sequence, register_format
+from .base import Sequence, SequenceFormat
+from .formats import FORMATS, available_formats, open_sequence
 from .kalibr import Calibration, apply_calibration, read_calibration
 from .native import NativeSequence
 from .native_writer import NativeSequenceWriter, write_native_sequence
 
 __all__ = [
+    "FORMATS",
     "AslSequence",
     "AslWriter",
     "BagSequence",
@@ -48,6 +48,5 @@ __all__ = [
     "open_bag",
     "open_sequence",
     "read_calibration",
-    "register_format",
     "write_native_sequence",
 ]

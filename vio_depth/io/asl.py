@@ -58,7 +58,7 @@ from vio_core.geometry import invert_transform
 from vio_core.limits import MAX_TEXT_BYTES, read_limited, too_large
 
 from ..frame import Frame, ImuData, imu_sample_problem
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .decode import decode_image
 from .images import read_image_bytes
 from .tables import (
@@ -465,13 +465,14 @@ def detect_asl(path) -> bool:
     return mav0 is not None and (mav0 / "cam0").is_dir()
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "asl", detect_asl, AslSequence,
     "EuRoC / TUM-VI ASL layout (mav0/cam0, imu0, state_groundtruth_estimate0; docs/datasets.md)",
-))
+)
 
 __all__ = [
-    "ASL_GRAVITY_W", "AslGroundTruth", "AslSequence", "AslSettings", "asl_root", "detect_asl", "parse_T_BS",
+    "ASL_GRAVITY_W", "FORMAT", "AslGroundTruth", "AslSequence", "AslSettings", "asl_root", "detect_asl",
+    "parse_T_BS",
     "parse_camera_yaml", "read_asl_ground_truth", "read_asl_image", "read_asl_images_csv", "read_asl_imu",
     "read_asl_table", "read_sensor_yaml",
 ]

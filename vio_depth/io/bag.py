@@ -49,7 +49,7 @@ from vio_core.geometry import invert_transform
 from ..frame import Frame, ImuData, imu_sample_problem
 from .bag_messages import camera_from_info, check_image_encoding, image_from_message, imu_sample, pose_sample, stamp_ns
 from .bag_topics import BagTopics, TopicChoice, choose_topics, open_reader, reader_error
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .kalibr import Calibration, calibrated_imu
 from .tables import QUATERNION_NORM_TOLERANCE, interpolate_poses
 
@@ -372,9 +372,9 @@ def open_bag(path, settings: BagSettings = BagSettings()) -> BagSequence:
     return BagSequence(path, settings)
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "rosbag", detect_bag, open_bag,
     "ROS 1 .bag, ROS 2 bag folder (sqlite3 / mcap) or .mcap file, through rosbags (docs/ros.md)",
-))
+)
 
-__all__ = ["BAG_GRAVITY_W", "BagSequence", "BagSettings", "POSE_FRAMES", "TopicChoice", "detect_bag", "open_bag"]
+__all__ = ["BAG_GRAVITY_W", "FORMAT", "BagSequence", "BagSettings", "POSE_FRAMES", "TopicChoice", "detect_bag", "open_bag"]

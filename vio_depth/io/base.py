@@ -1,11 +1,12 @@
-"""Sequence abstraction and the format registry shared by every loader.
+"""Sequence abstraction shared by every loader, and :class:`SequenceFormat`, a loader's entry.
 
 A :class:`Sequence` holds only light metadata (paths, timestamps, poses, IMU samples);
 pixel data are read lazily when a :class:`~vio_depth.frame.Frame`'s loaders are called,
 so iterating a sequence never holds more than the current frame in memory.
 
-Loaders register themselves with :func:`register_format` when :mod:`vio_depth.io` imports
-them; :func:`open_sequence` auto-detects the format or honours an explicit ``format=`` name.
+Each loader module defines its ``FORMAT`` (a :class:`SequenceFormat`); :mod:`.formats` lists
+them in detection order, and its :func:`~vio_depth.io.open_sequence` auto-detects the format
+or honours an explicit ``format=`` name.
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from vio_core.camera import Camera
-from vio_core.errors import InputError, lookup
 
 from ..disparity import DisparitySpec
 from ..frame import Frame, ImuData
@@ -77,40 +77,9 @@ class Sequence(abc.ABC):
 
 @dataclass(frozen=True)
 class SequenceFormat:
+    """A sequence format: its name (``--format``), whether a path is one, how to open it, a line about it."""
+
     name: str
     detect: Callable[[Path], bool]
     open: Callable[[Path], Sequence]
     description: str = ""
-
-
-_FORMATS: dict[str, SequenceFormat] = {}
-
-
-def register_format(fmt: SequenceFormat) -> SequenceFormat:
-    _FORMATS[fmt.name] = fmt
-    return fmt
-
-
-def available_formats() -> list[str]:
-    return sorted(_FORMATS)
-
-
-def open_sequence(path, format: str | None = None) -> Sequence:
-    """Open the sequence at ``path``; auto-detect its format unless ``format`` is given.
-
-    Raises:
-        InputError: ``path`` is missing or no format recognises it.
-        UnknownNameError: ``format`` is not a registered format name.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file or directory")
-    if format is not None:
-        return lookup("sequence format", format, _FORMATS).open(path)
-    for fmt in _FORMATS.values():
-        if fmt.detect(path):
-            return fmt.open(path)
-    raise InputError(
-        f"{path}: not a recognised sequence folder (formats: {', '.join(sorted(_FORMATS))}; "
-        "see docs/sequence_format.md)"
-    )

@@ -57,7 +57,7 @@ from vio_core.geometry import invert_transform, make_transform
 from vio_core.limits import read_json_file
 
 from ..frame import Frame
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .images import read_rgb_image
 from .tables import MAX_POSITION_M, QUATERNION_NORM_TOLERANCE, inside_name
 
@@ -493,7 +493,7 @@ def _detect(path: Path) -> bool:
     return bool(find_ddad_scenes(path)) and not (path / "sequence.json").is_file()
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "ddad", _detect, DdadSequence,
     "DDAD / DGP scene (scene_*.json, calibration/, rgb/<CAMERA>/, point_cloud/<LIDAR>/*.npz)",
-))
+)

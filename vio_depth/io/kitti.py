@@ -41,7 +41,7 @@ from vio_core.geometry import invert_transform
 from vio_core.npyfile import load_array
 
 from ..frame import Frame, ImuData, imu_sample_problem
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .images import read_rgb_image
 from .kitti_oxts import (
     CALIB_CAM_TO_CAM,
@@ -248,7 +248,7 @@ def _detect(path: Path) -> bool:
         return True  # several drives: let open() say which
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "kitti_raw", _detect, KittiRawSequence,
     "KITTI raw drive (image_02 + OXTS poses/IMU + velodyne or proj_depth ground truth)",
-))
+)

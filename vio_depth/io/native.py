@@ -32,7 +32,7 @@ from vio_core.limits import LimitError, read_json_file
 
 from ..disparity import DisparityKind, DisparitySimulation, DisparitySpec
 from ..frame import Frame, ImuData, imu_calibration_problem, imu_sample_problem
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .depth_png import DEPTH_PNG_SCALE, read_depth_png
 from .images import read_rgb_image
 from .tables import read_text_table, read_tum_trajectory, stays_inside
@@ -368,7 +368,7 @@ def open_native(path) -> NativeSequence:
     return NativeSequence(path)
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "native", detect_native, open_native,
     "vio-depth native folder with sequence.json (docs/sequence_format.md)",
-))
+)

@@ -44,7 +44,7 @@ from vio_core.errors import InputError, SequenceFormatError
 from vio_core.geometry import invert_transform
 
 from ..frame import Frame
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .depth_png import read_depth_png
 from .images import read_rgb_image
 from .rasterize import register_depth
@@ -206,7 +206,7 @@ def _detect(path: Path) -> bool:
     return path.is_dir() and any(_COLOR_RE.match(p.name) for p in path.glob("frame-*.color.*"))
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "7scenes", _detect, SevenScenesSequence,
     "Microsoft 7-Scenes folder (frame-XXXXXX.color/depth/pose, camera-intrinsics.txt)",
-))
+)

@@ -34,7 +34,7 @@ from vio_core.camera import Camera
 from vio_core.errors import InputError, SequenceFormatError
 
 from ..frame import Frame
-from .base import Sequence, SequenceFormat, register_format
+from .base import Sequence, SequenceFormat
 from .depth_png import read_depth_png
 from .images import read_rgb_image
 from .tables import (
@@ -235,7 +235,7 @@ def _detect(path: Path) -> bool:
         (path / "depth.txt").is_file() or (path / "groundtruth.txt").is_file())
 
 
-register_format(SequenceFormat(
+FORMAT = SequenceFormat(
     "tum_rgbd", _detect, TumRgbdSequence,
     "TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, accelerometer.txt)",
-))
+)

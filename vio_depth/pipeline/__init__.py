@@ -7,22 +7,36 @@ module             job
 ``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`, :class:`PreparedFrame`
 ``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
 ``landmark_points`` :class:`LandmarkPointsStage`: multi-view landmarks over a keyframe window
-``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML)
+``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML),
+                   :data:`POSE_PRESETS`
+``build``          :func:`build_stages`: matcher, pose source, disparity source, points stage from
+                   the settings, by explicit calls (:func:`build_pose_stage`, :func:`create_pose_source`)
+``feed``           a stream's frames and IMU samples, its lazily built ``imu`` / ``vio`` source
 ``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
 ``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
 =================  ============================================================================
 """
 
+from .build import (
+    PoseStage,
+    Stages,
+    build_matcher,
+    build_points_stage,
+    build_pose_stage,
+    build_stages,
+    create_pose_source,
+)
 from .landmark_points import LandmarkPointsStage
 from .pipeline import Pipeline
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
-from .settings import PRESET_FAMILIES, PipelineSettings
+from .settings import POSE_PRESETS, PRESET_FAMILIES, PipelineSettings, PoseSettings
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
 
 __all__ = [
     "PIPELINE_STAGES",
+    "POSE_PRESETS",
     "PRESET_FAMILIES",
     "FrameResult",
     "FrameStatus",
@@ -34,8 +48,16 @@ __all__ = [
     "Pipeline",
     "PipelineSettings",
     "PointsOutcome",
+    "PoseSettings",
+    "PoseStage",
     "PreparedFrame",
+    "Stages",
     "TwoViewPoints",
+    "build_matcher",
+    "build_points_stage",
+    "build_pose_stage",
+    "build_stages",
+    "create_pose_source",
     "decide_frame_status",
     "most_certain_per_keypoint",
 ]

@@ -11,22 +11,14 @@ import logging
 import time
 from dataclasses import replace
 
-from matchers import Features, Matcher, create_matcher
-from vio_core.errors import CorruptImageError, InputError, SettingsError
+from matchers import Features, Matcher
+from vio_core.errors import CorruptImageError
 
-from ..disparity import (
-    DisparitySource,
-    check_inversion,
-    check_map_content,
-    create_disparity_source,
-    missing_disparity_reason,
-)
-from ..evaluation import PointSourceKind
+from ..disparity import DisparitySource, check_inversion, check_map_content, missing_disparity_reason
 from ..frame import Frame
-from ..poses import GroundTruthPoses, PoseSource, TrackingPoseSource, VioSettings, create_pose_source
+from ..poses import PoseSource, TrackingPoseSource
 from ..rescale import Rescaler, sample_bilinear
-from .landmark_points import LandmarkPointsStage
-from .points import TwoViewPoints
+from .build import PoseStage, build_stages
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
@@ -37,9 +29,14 @@ log = logging.getLogger(__name__)
 class Pipeline:
     """Streaming metric-depth pipeline over the frames of one camera.
 
+    Its stages are built by :func:`~vio_depth.pipeline.build_stages` from ``settings``,
+    except those given here.
+
     Args:
         settings: see :class:`PipelineSettings`.
-        pose_source: relative poses between frames; default: built from ``settings.poses``
+        pose_source: relative poses between frames (a tracker when it implements
+            :class:`~vio_depth.poses.TrackingPoseSource`), or a
+            :class:`~vio_depth.pipeline.PoseStage`; default: built from ``settings.poses``
             for ``sequence`` (the ``gt`` source needs none).
         disparity_source: each frame's affine-invariant disparity; default: built from
             ``settings.disparity`` for ``sequence``.
@@ -48,41 +45,20 @@ class Pipeline:
         matcher: a ready matcher instead of one built from ``settings.matcher``.
     """
 
-    def __init__(self, settings: PipelineSettings | None = None, pose_source: PoseSource | None = None,
+    def __init__(self, settings: PipelineSettings | None = None, pose_source: PoseSource | PoseStage | None = None,
                  disparity_source: DisparitySource | None = None, *, sequence=None, matcher: Matcher | None = None):
         self.settings = settings = PipelineSettings() if settings is None else settings
         self.sequence = sequence
-        sfm = settings.points.kind == PointSourceKind.SFM
-        landmarks = settings.points.kind == PointSourceKind.LANDMARKS
-        tracking = isinstance(pose_source, TrackingPoseSource) or (
-            pose_source is None and isinstance(settings.poses, VioSettings))
-        if matcher is None and tracking and pose_source is not None:
-            matcher = pose_source.matcher
-        if matcher is None and (sfm or landmarks or tracking):
-            matcher = create_matcher(settings.matcher)
-        self._matcher = matcher
-        self.pose_source = create_pose_source(settings.poses, sequence, matcher) if pose_source is None else pose_source
+        stages = build_stages(settings, sequence, pose_source, disparity_source, matcher)
+        self._matcher = stages.matcher
+        #: the pose source and whether it tracks the frames
+        self.poses: PoseStage = stages.poses
+        self.pose_source: PoseSource = stages.poses.source
         #: the pose source that estimates poses from the frames itself (visual-inertial odometry), or None
-        self.tracker: TrackingPoseSource | None = (self.pose_source if isinstance(self.pose_source, TrackingPoseSource)
-                                                   else None)
-        if self.tracker is not None and self.tracker.matcher is not matcher:
-            raise InputError(f"the {self.tracker.name} pose source must use the pipeline's matcher "
-                             "(its features are extracted once, by the pipeline)")
-        self.disparity_source = (create_disparity_source(settings.disparity, sequence)
-                                 if disparity_source is None else disparity_source)
+        self.tracker: TrackingPoseSource | None = stages.poses.tracker
+        self.disparity_source = stages.disparity_source
         self.rescaler = Rescaler(settings.rescaler)
-        self.points = None
-        if sfm:
-            self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
-                                        settings.min_matches, settings.consistency)
-        elif landmarks:
-            if not isinstance(self.pose_source, GroundTruthPoses):
-                raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
-                                    f"the {self.pose_source.name!r} pose source gives no absolute poses with "
-                                    "uncertainty to use as priors")
-            self.points = LandmarkPointsStage(
-                matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
-                self.pose_source.uncertainty, settings.consistency)
+        self.points = stages.points
 
     @property
     def matcher(self) -> Matcher | None:
@@ -91,7 +67,7 @@ class Pipeline:
 
     def fresh(self) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history."""
-        return Pipeline(self.settings, self.pose_source, self.disparity_source, sequence=self.sequence,
+        return Pipeline(self.settings, self.poses, self.disparity_source, sequence=self.sequence,
                         matcher=self.matcher)
 
     # ------------------------------------------------------------------ per frame

@@ -29,8 +29,30 @@ from ..disparity import DisparitySettings
 from ..evaluation import PointSourceSpec, parse_points_spec
 from ..keyframes import PAIRING_PRESETS, PairingSettings
 from ..landmarks import LandmarkSettings
-from ..poses import POSE_PRESETS, PoseSettings
+from ..poses import GroundTruthPoseSettings, ImuPoseSettings
 from ..rescale import RESCALER_PRESETS, RescalerSettings
+from ..vio import VioSettings
+
+#: the settings of a pose source: one type per source (:func:`vio_depth.pipeline.build_pose_stage`)
+PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
+
+#: pose-source presets (``--poses``): ``gt`` (the sequence's poses), ``imu`` (gtsam
+#: preintegration, the covariance calibrated on EuRoC V1_01), ``imu_real_mav`` (``imu`` with the
+#: accelerometer noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md) and
+#: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md). They live here, above
+#: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
+POSE_PRESETS: Presets = Presets("pose source", {
+    "gt": GroundTruthPoseSettings(),
+    "imu": ImuPoseSettings(),
+    "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
+    "vio": VioSettings(),
+}, default="gt", descriptions={
+    "gt": "the sequence's own metric poses",
+    "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",
+    "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
+                    "(calibrated on EuRoC V1_01)",
+    "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
+})
 
 
 @dataclass(frozen=True)
@@ -40,7 +62,7 @@ class PipelineSettings:
     Attributes:
         matcher: features and matching (:data:`matchers.MATCHER_PRESETS`: ``sift``,
             ``disk+lightglue``, ``aliked+lightglue``, ``xfeat+lighterglue``).
-        poses: the pose source (:data:`vio_depth.poses.POSE_PRESETS`: ``gt``, ``imu``).
+        poses: the pose source (:data:`POSE_PRESETS`: ``gt``, ``imu``, ``imu_real_mav``, ``vio``).
         pairing: keyframe and pair selection (``kitti``, ``ddad``, ``indoor``).
         triangulation: per-point checks (:class:`triangulation.TriangulationSettings`).
         rescaler: robust fit, fallbacks and temporal filter (``streaming``, ``per_frame``, ``paper``).

@@ -15,15 +15,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from matchers import Features, create_matcher
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_image, check_transform
 from vio_core.errors import InputError
 
 from ..disparity import DisparityKind, check_disparity
 from ..frame import Frame, ImuData
-from ..poses import FramePose, GroundTruthPoses, ImuPoseSettings, ImuPoseSource, RelativePose, VioSettings
-from ..vio import VioPoseSource
+from .build import build_matcher, build_pose_stage
+from .feed import StreamInputs
 from .pipeline import Pipeline
 from .result import FrameResult
 from .settings import PipelineSettings
@@ -41,19 +40,6 @@ class _GivenDisparity:
         if self.current is None:
             return None
         return check_disparity(self.current, frame, f"disparity of frame {frame.index}")
-
-
-class _History:
-    """The frames pushed so far, as the IMU pose source reads a sequence's past poses."""
-
-    def __init__(self):
-        self.frames: list[Frame] = []
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, index: int) -> Frame:
-        return self.frames[index]
 
 
 class FrameStream:
@@ -81,25 +67,10 @@ class FrameStream:
             raise InputError(f"camera must be a vio_core.Camera, got {type(camera).__name__}")
         self.camera = camera
         self._disparity = _GivenDisparity()
-        self._history = _History()
-        self._imu_calibration = imu_calibration
-        self._imu_t: list[np.ndarray] = []
-        self._imu_gyro: list[np.ndarray] = []
-        self._imu_accel: list[np.ndarray] = []
-        self._imu_source: ImuPoseSource | VioPoseSource | None = None
-        self._matcher = None
-        if isinstance(settings.poses, (ImuPoseSettings, VioSettings)):
-            if imu_calibration is None:
-                raise InputError(f"the {'vio' if isinstance(settings.poses, VioSettings) else 'imu'} pose source "
-                                 "needs imu_calibration (an ImuData with T_c_i and noise densities)")
-            if isinstance(settings.poses, VioSettings):
-                self._matcher = create_matcher(settings.matcher)
-                pose_source = _LazyVioPoses(self, self._matcher)
-            else:
-                pose_source = _LazyImuPoses(self)
-        else:
-            pose_source = GroundTruthPoses(settings.poses, pose_kind)
-        self.pipeline = Pipeline(settings, pose_source, self._disparity, matcher=self._matcher)
+        self._inputs = StreamInputs(pose_kind, imu_calibration)
+        matcher = build_matcher(settings)
+        poses = build_pose_stage(settings.poses, matcher=matcher, stream=self._inputs)
+        self.pipeline = Pipeline(settings, poses, self._disparity, matcher=matcher)
 
     @property
     def settings(self) -> PipelineSettings:
@@ -123,7 +94,7 @@ class FrameStream:
             ShapeError / InputError: wrongly shaped arrays, decreasing time, a missing input
                 the pose source needs.
         """
-        index = len(self._history)
+        index = len(self._inputs)
         image = np.asarray(image)
         if image.ndim == 2:
             image = np.repeat(image[:, :, None], 3, axis=2)
@@ -132,81 +103,18 @@ class FrameStream:
             raise InputError(f"image: expected ({self.camera.height}, {self.camera.width}, 3) uint8, "
                              f"got {image.shape} {image.dtype}")
         t = float(index if timestamp is None else timestamp)
-        if self._history.frames and not t > self._history.frames[-1].timestamp:
-            raise InputError(f"timestamps must increase: {t} after {self._history.frames[-1].timestamp}")
+        frames = self._inputs.frames
+        if frames and not t > frames[-1].timestamp:
+            raise InputError(f"timestamps must increase: {t} after {frames[-1].timestamp}")
         pose = None if T_w_c is None else check_transform("T_w_c", T_w_c)
         depth = None if gt_depth is None else check_array("gt_depth", gt_depth, image.shape[:2]).astype(np.float32)
         if imu is not None:
-            self._add_imu(*imu)
+            self._inputs.add_imu(*imu)
         frame = Frame(index, t, f"{index:06d}", self.camera, pose, load_image=lambda: image,
                       load_gt_depth=None if depth is None else (lambda: depth))
-        self._history.frames.append(frame)
+        frames.append(frame)
         self._disparity.current = None if disparity is None else np.asarray(disparity)
         try:
             return self.pipeline.process(frame)
         finally:
             self._disparity.current = None
-
-    def _add_imu(self, t, gyro, accel) -> None:
-        t = check_array("imu t", t, (None,), finite=True)
-        gyro = check_array("imu gyro", gyro, (len(t), 3), finite=True)
-        accel = check_array("imu accel", accel, (len(t), 3), finite=True)
-        if len(t) == 0:
-            return
-        self._imu_t.append(t)
-        self._imu_gyro.append(gyro)
-        self._imu_accel.append(accel)
-        cal = self._imu_calibration
-        if cal is None:
-            return
-        imu = ImuData(np.concatenate(self._imu_t), np.concatenate(self._imu_gyro), np.concatenate(self._imu_accel),
-                      cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk, cal.accel_bias_walk,
-                      cal.gravity_w)
-        if self._imu_source is None:
-            if isinstance(self.settings.poses, VioSettings):
-                self._imu_source = VioPoseSource(imu, self._matcher, self.settings.poses)
-            else:
-                self._imu_source = ImuPoseSource(imu, self._history, self.settings.poses)
-        else:
-            self._imu_source.update_samples(imu)
-
-
-class _LazyImuPoses:
-    """The IMU pose source of a stream, created when the first samples arrive."""
-
-    name = "imu"
-
-    def __init__(self, stream: FrameStream):
-        self._stream = stream
-
-    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
-        source = self._stream._imu_source
-        if source is None:
-            return RelativePose(None, ok=False, reason="no IMU samples pushed yet")
-        return source.relative(keyframe, current)
-
-
-class _LazyVioPoses:
-    """The odometry of a stream, created when the first IMU samples arrive."""
-
-    name = "vio"
-
-    def __init__(self, stream: FrameStream, matcher):
-        self._stream = stream
-        self.matcher = matcher
-
-    def track(self, frame: Frame, features: Features) -> FramePose:
-        source = self._stream._imu_source
-        if source is None:
-            return FramePose(None, ok=False, status="initialising", reason="no IMU samples pushed yet")
-        return source.track(frame, features)
-
-    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
-        source = self._stream._imu_source
-        if source is None:
-            return RelativePose(None, ok=False, reason="no IMU samples pushed yet")
-        return source.relative(keyframe, current)
-
-    def world_pose(self, frame: Frame):
-        source = self._stream._imu_source
-        return None if source is None else source.world_pose(frame)

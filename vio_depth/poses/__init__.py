@@ -12,9 +12,11 @@ module             job
 ``uncertainty``    :class:`PoseUncertainty`: what a sequence's poses get wrong, presets by kind
 ``timeline``       :class:`PoseTimeline`: a sequence's poses as a function of time (splines)
 ``calibration``    time offset and camera-to-body transform of the poses, from the images
-``vio_settings``   :class:`VioSettings` of the ``vio`` source (:mod:`vio_depth.vio`)
-``registry``       :data:`POSE_PRESETS`, :func:`create_pose_source`, :func:`register_pose_source`
 =================  ===========================================================================
+
+The presets (``--poses``: :data:`vio_depth.pipeline.POSE_PRESETS`) and the choice of a source
+from its settings (:func:`vio_depth.pipeline.build_pose_stage`) live two layers up, above the
+visual-inertial odometry (:mod:`vio_depth.vio`) whose settings they name too.
 """
 
 from .base import FramePose, PoseSource, PoseStatus, RelativePose, TrackingPoseSource
@@ -40,14 +42,11 @@ from .preintegration import (
     preintegrate,
     preintegration_params,
 )
-from .registry import POSE_PRESETS, PoseSettings, create_pose_source, register_pose_source
 from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
 from .timeline import PoseTimeline
 from .uncertainty import POSE_UNCERTAINTY_PRESETS, FrameTwist, PoseUncertainty, camera_twist
-from .vio_settings import VioInitSettings, VioSettings
 
 __all__ = [
-    "POSE_PRESETS",
     "POSE_UNCERTAINTY_PRESETS",
     "FrameTwist",
     "PoseUncertainty",
@@ -64,19 +63,15 @@ __all__ = [
     "PoseCalibration",
     "PoseCalibrationSettings",
     "PoseTimeline",
-    "PoseSettings",
     "PoseSource",
     "RelativePose",
     "StaticInit",
     "StaticInitSettings",
     "TrackingPoseSource",
-    "VioInitSettings",
-    "VioSettings",
     "WindowFit",
     "adjoint",
     "calibrated_poses",
     "calibration_pairs",
-    "create_pose_source",
     "detect_still_interval",
     "estimate_pose_calibration",
     "fit_window",
@@ -84,7 +79,6 @@ __all__ = [
     "integrate_interval",
     "preintegrate",
     "preintegration_params",
-    "register_pose_source",
     "solve_pose_calibration",
     "static_initialisation",
 ]

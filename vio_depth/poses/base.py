@@ -3,7 +3,8 @@ between a keyframe and a later frame.
 
 The pipeline only needs the relative pose ``T_kf_cur`` (current camera to keyframe
 camera, metres) and, when known, its uncertainty. Sources: :mod:`.groundtruth` (the
-sequence's poses) and :mod:`.imu` (IMU preintegration); :mod:`.registry` chooses by name.
+sequence's poses) and :mod:`.imu` (IMU preintegration);
+:func:`vio_depth.pipeline.build_pose_stage` builds the one its settings name.
 
 A :class:`TrackingPoseSource` (visual-inertial odometry, :mod:`vio_depth.vio`) estimates
 the poses itself from the frames: the pipeline hands it every frame, in order, with the
@@ -42,7 +43,7 @@ class RelativePose:
 
 
 class PoseSource(Protocol):
-    """Gives relative poses between frames of one camera (``name``: its registry name)."""
+    """Gives relative poses between frames of one camera (``name``: its ``--poses`` name)."""
 
     name: str
 

@@ -55,7 +55,7 @@ class ImuPoseSettings:
     The defaults are the covariance calibrated on the real EuRoC V1_01 IMU stream
     (docs/benchmarks.md, "IMU propagation and covariance"); :meth:`uncalibrated` gives the
     covariance before that calibration (datasheet noise only, no bias or pose-noise terms).
-    The pose preset ``imu_real_mav`` (:data:`vio_depth.poses.POSE_PRESETS`) adds
+    The pose preset ``imu_real_mav`` (:data:`vio_depth.pipeline.POSE_PRESETS`) adds
     ``accel_noise_scale = 10`` for a real MEMS IMU on a vibrating vehicle.
 
     Raises:

@@ -10,12 +10,12 @@ module              job
 ``history``         the estimated poses; relative poses with their covariance
 ``estimator``       :class:`VioEstimator`: initialising, tracking, lost, re-initialising
 ``source``          :class:`VioPoseSource`, the pipeline's ``vio`` pose source
+``settings``        :class:`VioSettings`, :class:`VioInitSettings`
 ==================  ==========================================================================
 
-The settings are :class:`vio_depth.poses.VioSettings` (preset ``vio`` of
-:data:`vio_depth.poses.POSE_PRESETS`); docs/vio.md says what it needs and where it fails.
-Importing this package registers the ``vio`` source with
-:func:`vio_depth.poses.create_pose_source`.
+The preset ``vio`` of :data:`vio_depth.pipeline.POSE_PRESETS` is ``VioSettings()``;
+:func:`vio_depth.pipeline.build_pose_stage` builds the source for it (an explicit call:
+importing this package registers nothing). docs/vio.md says what it needs and where it fails.
 """
 
 from .alignment import Alignment, align, estimate_gyro_bias
@@ -23,6 +23,7 @@ from .estimator import VioEstimator, VioFrame, VioStatus
 from .history import PoseHistory, PoseRecord
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Candidate, Initializer, InitKind, InitResult
+from .settings import VioInitSettings, VioSettings
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 from .source import VioPoseSource
 
@@ -40,7 +41,9 @@ __all__ = [
     "SfmResult",
     "VioEstimator",
     "VioFrame",
+    "VioInitSettings",
     "VioPoseSource",
+    "VioSettings",
     "VioStatus",
     "align",
     "estimate_gyro_bias",

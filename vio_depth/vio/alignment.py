@@ -39,7 +39,8 @@ from vio_core.checks import check_array
 from vio_core.geometry import make_transform
 
 from ..frame import ImuData
-from ..poses import VioInitSettings, gravity_aligned_rotation, preintegrate
+from ..poses import gravity_aligned_rotation, preintegrate
+from .settings import VioInitSettings
 
 
 @dataclass(frozen=True)

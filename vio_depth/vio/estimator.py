@@ -50,11 +50,12 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import LandmarkEstimator
-from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
+from ..poses import adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitKind, InitResult
 from .matching import EpipolarGatedMatcher, rotation_free_flow
+from .settings import VioSettings
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,7 @@ class VioEstimator:
     Args:
         imu: the IMU samples (with ``T_c_i``, noise densities, gravity).
         matcher: matches the frames' features (the same matcher extracted them).
-        settings: :class:`~vio_depth.poses.VioSettings`.
+        settings: :class:`~vio_depth.vio.VioSettings`.
     """
 
     def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings()):

@@ -36,7 +36,8 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import KeyframeInput, MotionFactors
-from ..poses import VioSettings, adjoint, preintegrate, preintegration_params
+from ..poses import adjoint, preintegrate, preintegration_params
+from .settings import VioSettings
 
 #: stiffness of the camera-IMU mounting factor (rad, m)
 _MOUNT_SIGMA = 1e-5
@@ -107,7 +108,7 @@ class ImuFactors:
 
     Args:
         imu: the IMU samples (with ``T_c_i``); :meth:`update_samples` extends them.
-        settings: :class:`~vio_depth.poses.VioSettings` (``imu``: noise scales, sample gaps).
+        settings: :class:`~vio_depth.vio.VioSettings` (``imu``: noise scales, sample gaps).
     """
 
     #: every keyframe's pose comes from here (the IMU state), the frames' priors are IMU predictions

@@ -34,10 +34,11 @@ from vio_core.camera import Camera
 
 from ..frame import ImuData
 from ..landmarks import FrameMatches
-from ..poses import StaticInitSettings, VioSettings, preintegrate, static_initialisation
+from ..poses import StaticInitSettings, preintegrate, static_initialisation
 from .alignment import Alignment, align
 from .imu_factors import KeyframeState
 from .matching import rotation_free_flow
+from .settings import VioSettings
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 
 #: fewer matches with the previous candidate than this restarts the candidates
@@ -101,7 +102,7 @@ class Initializer:
     Args:
         imu: the IMU samples (:meth:`update_samples` for streams).
         matcher: matches the offered frames' features.
-        settings: :class:`~vio_depth.poses.VioSettings` (``init``, bias prior sigmas).
+        settings: :class:`~vio_depth.vio.VioSettings` (``init``, bias prior sigmas).
         params: gtsam preintegration parameters.
     """
 

@@ -22,8 +22,9 @@ from matchers import Features, Matcher, create_matcher
 from vio_core.errors import InputError
 
 from ..frame import Frame, ImuData
-from ..poses import FramePose, RelativePose, VioSettings, register_pose_source
+from ..poses import FramePose, RelativePose
 from .estimator import VioEstimator, VioFrame
+from .settings import VioSettings
 
 
 def _frame_pose(v: VioFrame) -> FramePose:
@@ -36,7 +37,7 @@ class VioPoseSource:
     Args:
         imu: the IMU samples (with ``T_c_i``).
         matcher: the matcher that extracts the features handed to :meth:`track`.
-        settings: :class:`~vio_depth.poses.VioSettings`.
+        settings: :class:`~vio_depth.vio.VioSettings`.
     """
 
     name = "vio"
@@ -102,10 +103,3 @@ class VioPoseSource:
         if T is None:
             return RelativePose(None, ok=False, reason=reason)
         return RelativePose(T, C)
-
-
-def _create(settings: VioSettings, sequence, matcher: Matcher | None) -> VioPoseSource:
-    return VioPoseSource.for_sequence(sequence, settings, matcher)
-
-
-register_pose_source(VioSettings, _create)

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from vio_depth.evaluation import evaluate_propagation, ground_truth_frames
-from vio_depth.poses import POSE_PRESETS, ImuPoseSettings
+from vio_depth.pipeline import POSE_PRESETS
+from vio_depth.poses import ImuPoseSettings
 
 REPO = Path(__file__).resolve().parents[3]
 EUROC = REPO / ".." / "shared" / "data" / "euroc_v101_static"

@@ -18,7 +18,7 @@ from vio_depth.io.sevenscenes import (
     SevenScenesSequence,
     SevenScenesSettings,
 )
-from vio_depth.poses import create_pose_source
+from vio_depth.pipeline import create_pose_source
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "7scenes_redkitchen"
 IDENTITY = tuple(map(tuple, np.eye(4)))

@@ -9,7 +9,7 @@ from vio_core.errors import InputError, SequenceFormatError
 from vio_depth.io import open_sequence
 from vio_depth.io.tables import associate_nearest
 from vio_depth.io.tum import TUM_CAMERAS, TumRgbdSequence, TumSettings
-from vio_depth.poses import create_pose_source
+from vio_depth.pipeline import create_pose_source
 
 W, H = 64, 48
 T0 = 1305031102.0

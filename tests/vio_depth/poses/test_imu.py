@@ -253,7 +253,7 @@ def test_kitti_tiny_imu_poses_against_oxts_poses():
     if not KITTI.is_dir():
         pytest.skip(f"{KITTI} not present")
     from vio_depth.io import open_sequence
-    from vio_depth.poses import create_pose_source
+    from vio_depth.pipeline import create_pose_source
 
     seq = open_sequence(KITTI)
     src = create_pose_source("imu", seq)
@@ -277,7 +277,7 @@ def test_sample_sequences_one_second_relative_translation(name):
     if not (root / "sequence.json").is_file():
         pytest.skip(f"{root} not generated")
     from vio_depth.io import open_sequence
-    from vio_depth.poses import create_pose_source
+    from vio_depth.pipeline import create_pose_source
 
     seq = open_sequence(root)
     src = create_pose_source("imu", seq)

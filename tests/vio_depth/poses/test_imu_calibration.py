@@ -9,8 +9,8 @@ from vio_core.errors import SettingsError, UnknownNameError
 from vio_core.geometry import make_transform
 from vio_depth.evaluation.imu_propagation import FrameList, ground_truth_frames
 from vio_depth.frame import ImuData
+from vio_depth.pipeline import POSE_PRESETS
 from vio_depth.poses import (
-    POSE_PRESETS,
     ImuPoseSettings,
     ImuPoseSource,
     NavEstimate,

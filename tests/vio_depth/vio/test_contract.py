@@ -14,7 +14,8 @@ from vio_core.camera import Camera
 from vio_core.errors import InputError, ShapeError
 from vio_depth.frame import ImuData
 from vio_depth.landmarks import KeyframeInput, MotionFactorSource
-from vio_depth.poses import FramePose, PoseStatus, VioSettings
+from vio_depth.poses import FramePose, PoseStatus
+from vio_depth.vio import VioSettings
 from vio_depth.vio import ImuFactors, InitKind, KeyframeState, PoseHistory, VioStatus
 
 gtsam = pytest.importorskip("gtsam")

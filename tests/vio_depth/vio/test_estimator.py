@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 from vio_core.errors import InputError, SettingsError
 from vio_core.geometry import invert_transform
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error
-from vio_depth.poses import POSE_PRESETS, VioInitSettings, VioSettings
-from vio_depth.vio import VioEstimator, VioPoseSource, VioStatus
+from vio_depth.pipeline import POSE_PRESETS
+from vio_depth.vio import VioEstimator, VioInitSettings, VioPoseSource, VioSettings, VioStatus
 
 from .synthetic import IdMatcher, make_scene
 

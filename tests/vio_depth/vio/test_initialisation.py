@@ -11,8 +11,9 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.geometry import invert_transform, make_transform
 from vio_depth.landmarks import FrameMatches
-from vio_depth.poses import POSE_PRESETS, VioInitSettings, preintegration_params
-from vio_depth.vio import SfmKeyframe, align, reconstruct
+from vio_depth.pipeline import POSE_PRESETS
+from vio_depth.poses import preintegration_params
+from vio_depth.vio import SfmKeyframe, VioInitSettings, align, reconstruct
 
 from .synthetic import IdMatcher, make_scene
 

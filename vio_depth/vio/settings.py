@@ -1,8 +1,8 @@
-"""Settings of the visual-inertial odometry pose source (``--poses vio``).
+"""Settings of the visual-inertial odometry pose source (``--poses vio``), next to its code.
 
-They live with the other pose settings so that :data:`~vio_depth.poses.POSE_PRESETS` can
-name them; the estimator itself is :mod:`vio_depth.vio` (one layer up: it needs the
-landmark window and the features).
+The preset ``vio`` of :data:`vio_depth.pipeline.POSE_PRESETS` is ``VioSettings()``;
+:func:`vio_depth.pipeline.build_pose_stage` builds the :class:`~vio_depth.vio.VioPoseSource`
+for it.
 """
 
 from __future__ import annotations
@@ -14,8 +14,7 @@ from vio_core.errors import SettingsError
 from vio_core.settings import require_positive
 
 from ..landmarks.settings import LandmarkSettings, PosePriorSettings
-from .imu_state import ImuPoseSettings
-from .static_init import StaticInitSettings
+from ..poses import ImuPoseSettings, StaticInitSettings
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,126 @@
+"""What a :class:`~vio_depth.pipeline.FrameStream` gives its pose source in place of a sequence.
+
+:class:`StreamInputs` holds the frames pushed so far (the ``imu`` source reads their poses as
+it reads a sequence's), the kind of the pushed poses, the IMU calibration and the IMU samples
+pushed so far. :class:`LazyImuPoses` is the ``imu`` or ``vio`` pose source of a stream:
+:func:`~vio_depth.pipeline.build_pose_stage` gives it the function that builds the source
+from IMU samples; it builds the source when it is first asked for a pose after samples
+arrived, and hands it the grown samples after.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from matchers import Features, Matcher
+from vio_core.checks import check_array
+
+from ..frame import Frame, ImuData
+from ..poses import FramePose, RelativePose
+
+#: the reason of every pose asked for before the first IMU samples
+NO_SAMPLES_YET = "no IMU samples pushed yet"
+
+
+class StreamInputs:
+    """The frames and IMU samples pushed to a stream so far (what a sequence gives a pose source).
+
+    Args:
+        pose_kind: what the pushed ``T_w_c`` are (a
+            :data:`~vio_depth.poses.POSE_UNCERTAINTY_PRESETS` name), for the ``gt`` source.
+        imu_calibration: an :class:`~vio_depth.frame.ImuData` whose ``T_c_i``, noise densities
+            and gravity the pushed samples get (its own samples are ignored), or None.
+    """
+
+    def __init__(self, pose_kind: str = "exact", imu_calibration: ImuData | None = None):
+        self.pose_kind = pose_kind
+        self.imu_calibration = imu_calibration
+        #: the frames pushed so far, in order
+        self.frames: list[Frame] = []
+        #: the samples pushed so far with the calibration; None before the first ones or without calibration
+        self.imu: ImuData | None = None
+        self._t: list[np.ndarray] = []
+        self._gyro: list[np.ndarray] = []
+        self._accel: list[np.ndarray] = []
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, index: int) -> Frame:
+        return self.frames[index]
+
+    def add_imu(self, t, gyro, accel) -> None:
+        """Append IMU samples: ``t`` (M,) seconds, ``gyro`` (M, 3) rad/s, ``accel`` (M, 3) m/s^2.
+
+        Raises:
+            ShapeError: wrongly shaped or non-finite arrays.
+        """
+        t = check_array("imu t", t, (None,), finite=True)
+        gyro = check_array("imu gyro", gyro, (len(t), 3), finite=True)
+        accel = check_array("imu accel", accel, (len(t), 3), finite=True)
+        if len(t) == 0:
+            return
+        self._t.append(t)
+        self._gyro.append(gyro)
+        self._accel.append(accel)
+        cal = self.imu_calibration
+        if cal is None:
+            return
+        self.imu = ImuData(np.concatenate(self._t), np.concatenate(self._gyro), np.concatenate(self._accel),
+                           cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk, cal.accel_bias_walk,
+                           cal.gravity_w)
+
+
+class LazyImuPoses:
+    """A stream's ``imu`` or ``vio`` pose source, built from its IMU samples when they arrive.
+
+    Args:
+        name: the source's ``--poses`` name.
+        inputs: the stream's inputs; their ``imu`` is read at every call.
+        build: builds the source from the samples so far (an :class:`~vio_depth.poses.ImuPoseSource`
+            or a :class:`~vio_depth.vio.VioPoseSource`); the source is then handed the grown
+            samples with its ``update_samples``.
+        matcher: the matcher of a source that tracks the frames (``vio``), else None.
+
+    :meth:`track` and :meth:`world_pose` are the tracking source's
+    (:class:`~vio_depth.poses.TrackingPoseSource`); whether a stream's source tracks is said by
+    the :class:`~vio_depth.pipeline.PoseStage` it comes in, not by these methods.
+    """
+
+    def __init__(self, name: str, inputs: StreamInputs, build: Callable[[ImuData], object],
+                 matcher: Matcher | None = None):
+        self.name = name
+        self.matcher = matcher
+        self._inputs = inputs
+        self._build = build
+        self._seen: ImuData | None = None
+        #: the source, once the first samples arrived
+        self.source = None
+
+    def _current(self):
+        imu = self._inputs.imu
+        if imu is not None and imu is not self._seen:
+            if self.source is None:
+                self.source = self._build(imu)
+            else:
+                self.source.update_samples(imu)
+            self._seen = imu
+        return self.source
+
+    def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
+        source = self._current()
+        if source is None:
+            return RelativePose(None, ok=False, reason=NO_SAMPLES_YET)
+        return source.relative(keyframe, current)
+
+    def track(self, frame: Frame, features: Features) -> FramePose:
+        source = self._current()
+        if source is None:
+            return FramePose(None, ok=False, status="initialising", reason=NO_SAMPLES_YET)
+        return source.track(frame, features)
+
+    def world_pose(self, frame: Frame) -> np.ndarray | None:
+        source = self._current()
+        return None if source is None else source.world_pose(frame)
