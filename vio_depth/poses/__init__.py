@@ -44,7 +44,7 @@ from .registry import POSE_PRESETS, PoseSettings, create_pose_source, register_p
 from .static_init import StaticInit, StaticInitSettings, detect_still_interval, static_initialisation
 from .timeline import PoseTimeline
 from .uncertainty import POSE_UNCERTAINTY_PRESETS, FrameTwist, PoseUncertainty, camera_twist
-from .vio_settings import VioInitSettings, VioSettings
+from .vio_settings import RestSettings, VioInitSettings, VioSettings
 
 __all__ = [
     "POSE_PRESETS",
@@ -69,6 +69,7 @@ __all__ = [
     "StaticInit",
     "StaticInitSettings",
     "TrackingPoseSource",
+    "RestSettings",
     "VioInitSettings",
     "VioSettings",
     "WindowFit",
