@@ -150,7 +150,7 @@ SETTING_RANGES: dict[str, str] = {
     "RestSettings.min_imu_s": "(0, inf)",
     "RestSettings.imu_block_s": "(0, inf)",
     "RestSettings.max_disparity_px": "(0, inf)",
-    "RestSettings.max_anchor_disparity_px": "(0, inf)",
+    "RestSettings.max_anchor_motion": "(0, inf)",
     "RestSettings.min_features": "[5, inf)",
     "RestSettings.translation_random_walk": "(0, inf)",
     "RestSettings.rotation_random_walk": "(0, inf)",

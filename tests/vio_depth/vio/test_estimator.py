@@ -184,5 +184,5 @@ def test_a_resting_camera_keeps_its_position_and_does_not_lose_tracking():
 
 
 def test_rest_settings_are_checked():
-    with pytest.raises(SettingsError, match="max_anchor_disparity_px"):
-        replace(SETTINGS, rest=replace(SETTINGS.rest, max_anchor_disparity_px=0.0))
+    with pytest.raises(SettingsError, match="max_anchor_motion"):
+        replace(SETTINGS, rest=replace(SETTINGS.rest, max_anchor_motion=0.0))
