@@ -93,8 +93,9 @@ class RestSettings:
     A tracked frame rests when all of these pass:
 
     * IMU: the samples since the previous frame (at least ``min_imu_s`` of them), averaged
-      over blocks of ``imu_block_s`` (vibration averages out), fit the zero-velocity hypothesis, gyroscope = bias and accelerometer = gravity in the body
-      frame + bias (the newest keyframe's estimates), within the IMU's white-noise densities
+      over blocks of ``imu_block_s`` (vibration averages out), fit the zero-velocity
+      hypothesis, gyroscope = bias and accelerometer = gravity in the body frame + bias (the
+      newest keyframe's estimates), within the IMU's white-noise densities
       times ``imu_noise_multiplier`` and the estimates' own uncertainty (``tilt_sigma_rad``,
       ``accel_bias_sigma``, ``gyro_bias_sigma``): chi-square below its ``chi2_probability``
       quantile for the residual's dimension;

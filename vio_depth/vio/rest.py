@@ -290,7 +290,8 @@ class RestDetector:
         T_turn[:3, :3] = R_anchor  # the IMU turned about its origin since the anchor
         T_w_c = anchor.T_w_c @ self.factors.T_c_i @ T_turn @ T_i_c
         dt = t - anchor.t
-        C = anchor.covariance + np.diag([s.rotation_random_walk ** 2 * dt] * 3 + [s.translation_random_walk ** 2 * dt] * 3)
+        C = anchor.covariance + np.diag([s.rotation_random_walk ** 2 * dt] * 3
+                                        + [s.translation_random_walk ** 2 * dt] * 3)
         return RestTest(True, f"at rest: IMU chi2 {chi2:.0f} <= {threshold:.0f} ({dof} dof), keypoints moved "
                               f"{disparity:.2f} px since the previous frame (rotation removed), the camera "
                               f"{motion:.2%} of the depth since frame {anchor.frame_id}; position of frame "

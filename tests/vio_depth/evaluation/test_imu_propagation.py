@@ -7,7 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vio_depth.evaluation import evaluate_propagation, ground_truth_frames, median_nees_bounds, within_fraction_bound
+from vio_depth.evaluation import (
+    evaluate_propagation,
+    ground_truth_frames,
+    median_nees_bounds,
+    within_fraction_bound,
+)
 from vio_depth.evaluation.imu_propagation import CHI2_3DOF_95
 from vio_depth.poses import POSE_PRESETS, ImuPoseSettings
 
@@ -22,8 +27,8 @@ def _overconfidence_refused(nees: np.ndarray, probability: float = 0.99) -> bool
     below the top of its chi-square(3) interval (:func:`median_nees_bounds`) and the fraction
     below the chi-square(3) 95 % quantile above its binomial bound (:func:`within_fraction_bound`)."""
     _, hi = median_nees_bounds(3, len(nees), probability)
-    return bool(np.median(nees) < hi and np.mean(nees <= CHI2_3DOF_95) >= within_fraction_bound(len(nees),
-                                                                                                probability=probability))
+    fraction = within_fraction_bound(len(nees), probability=probability)
+    return bool(np.median(nees) < hi and np.mean(nees <= CHI2_3DOF_95) >= fraction)
 
 
 def test_nees_on_the_simulated_room_sample():

@@ -83,7 +83,8 @@ def _still_imu(n: int, accel_offset=(0.0, 0.0, 0.0), seed: int = 0) -> ImuData:
     base = ImuData(np.arange(2) / 200.0, np.zeros((2, 3)), np.zeros((2, 3)), np.eye(4))
     dt = 1 / 200.0
     gyro = base.gyro_noise / np.sqrt(dt) * rng.standard_normal((n, 3))
-    accel = np.array([0.0, 0.0, 9.81]) + np.asarray(accel_offset) + base.accel_noise / np.sqrt(dt) * rng.standard_normal((n, 3))
+    accel = (np.array([0.0, 0.0, 9.81]) + np.asarray(accel_offset)
+             + base.accel_noise / np.sqrt(dt) * rng.standard_normal((n, 3)))
     return replace(base, t=np.arange(n) * dt, gyro=gyro, accel=accel)
 
 
