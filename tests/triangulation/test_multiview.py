@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from triangulation import TriangulationSettings, triangulate_pair
 from triangulation.multiview import (
@@ -73,8 +74,16 @@ def test_more_views_beat_two_and_sigma_is_calibrated():
                            TriangulationSettings(max_sampson_px=10, min_angle_deg=0.0))
     err_two = np.abs(two.depth - z_true[first]) / z_true[first]
     assert np.median(err_multi) < 0.4 * np.median(err_two)
-    nees = np.mean(((res.depth - z_true) / res.sigma_depth)[res.inlier] ** 2)
-    assert 0.6 < nees < 1.6
+    # depth NEES (1 dof) of the 400 points (one view each, independent): the mean of a consistent
+    # sigma lies in the 99 % interval of chi2(400) / 400, [0.83, 1.19]; sigma / 3 must fail it
+    ok = first & res.inlier
+    n = int(ok.sum())
+    lo, hi = chi2.ppf(0.005, n) / n, chi2.ppf(0.995, n) / n
+    nees = ((res.depth - z_true)[ok] / res.sigma_depth[ok]) ** 2
+    consistent = nees.mean()
+    assert lo < consistent < hi, (lo, consistent, hi)
+    overconfident = (9.0 * nees).mean()  # the same errors against sigma / 3
+    assert not lo < overconfident < hi, (lo, overconfident, hi)
 
 
 def test_outlier_observation_is_dropped_and_track_kept():

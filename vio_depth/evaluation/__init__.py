@@ -12,11 +12,13 @@ module                 job
 ``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 ``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
+``consistency``        NEES and the bounds a consistent estimator meets (mean, median, fraction)
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
 ``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
+from .consistency import mean_nees_bounds, median_nees_bounds, nees, within_fraction_bound
 from .frame import FrameEvaluation, aggregate_point_accuracy, evaluate_frame
 from .imu_propagation import PropagationErrors, evaluate_propagation, ground_truth_frames
 from .masks import CROPS, EvalMask, crop_bounds
@@ -101,6 +103,9 @@ __all__ = [
     "ground_truth_frames",
     "lidar_beams",
     "lidar_points",
+    "mean_nees_bounds",
+    "median_nees_bounds",
+    "nees",
     "oracle_fit",
     "package_version",
     "pairs_by_path",
@@ -114,5 +119,6 @@ __all__ = [
     "run_tasks",
     "shift_pixels",
     "umeyama_alignment",
+    "within_fraction_bound",
     "write_trajectory_tum",
 ]

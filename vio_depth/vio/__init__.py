@@ -8,6 +8,8 @@ module              job
 ``alignment``       scale, gravity, velocities and gyroscope bias from the IMU (dynamic start)
 ``initializer``     static start (still IMU and images), else the dynamic start
 ``history``         the estimated poses; relative poses with their covariance
+``rest``            the zero-velocity test (IMU chi-square and image disparity) of a tracked frame
+``bridge``          the poses of the frames between two keyframes, bridged by the IMU
 ``estimator``       :class:`VioEstimator`: initialising, tracking, lost, re-initialising
 ``source``          :class:`VioPoseSource`, the pipeline's ``vio`` pose source
 ``settings``        :class:`VioSettings`, :class:`VioInitSettings`
@@ -19,17 +21,20 @@ importing this package registers nothing). docs/vio.md says what it needs and wh
 """
 
 from .alignment import Alignment, align, estimate_gyro_bias
+from .bridge import FrameBridges
 from .estimator import VioEstimator, VioFrame, VioStatus
 from .history import PoseHistory, PoseRecord
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Candidate, Initializer, InitKind, InitResult
-from .settings import VioInitSettings, VioSettings
+from .rest import RestAnchor, RestDetector, RestTest, zero_velocity_chi2
+from .settings import RestSettings, VioInitSettings, VioSettings
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 from .source import VioPoseSource
 
 __all__ = [
     "Alignment",
     "Candidate",
+    "FrameBridges",
     "ImuFactors",
     "InitKind",
     "InitResult",
@@ -37,6 +42,10 @@ __all__ = [
     "KeyframeState",
     "PoseHistory",
     "PoseRecord",
+    "RestAnchor",
+    "RestDetector",
+    "RestSettings",
+    "RestTest",
     "SfmKeyframe",
     "SfmResult",
     "VioEstimator",
@@ -48,4 +57,5 @@ __all__ = [
     "align",
     "estimate_gyro_bias",
     "reconstruct",
+    "zero_velocity_chi2",
 ]

@@ -14,10 +14,11 @@ States (:class:`VioStatus`), per frame:
 * ``converging``: tracking, but the window does not know the metric scale to
   ``max_scale_sigma`` yet (e.g. just after a start with little excitation): the frame has
   **no pose** now (it keeps one in the history, for the offline backward pass);
-* ``still``: tracking, and the IMU and the images say the camera rests: the frame takes the
-  newest keyframe's pose (a zero-velocity update in its simplest form, as OpenVINS detects
-  rest from the IMU and the feature motion); the window is not updated, so a resting
-  camera neither drifts on the IMU alone nor loses tracking for lack of parallax;
+* ``still``: tracking, and the zero-velocity test (:mod:`vio_depth.vio.rest`: IMU chi-square
+  and image disparity, as OpenVINS) says the camera rests: the frame keeps the position of
+  the frame before the rest, with a covariance that grows with the time at rest; the window
+  is not updated, so a resting camera neither drifts on the IMU alone nor loses tracking for
+  lack of parallax;
 * ``imu_only``: tracking, but the frame's pose could not be refined against landmarks
   (too few): the IMU prediction is used, trusted for at most ``max_imu_only_s``;
 * ``lost``: the estimate diverged (speed, biases beyond plausible bounds) or had no visual
@@ -26,12 +27,8 @@ States (:class:`VioStatus`), per frame:
   sessions are never related).
 
 Poses kept (:attr:`VioEstimator.history`): keyframes follow the window's latest estimate
-until they are marginalised. A frame between two keyframes is posed when it is processed
-(against the landmarks) and again, after every window update while both keyframes are in
-the window, by the IMU between them: the prediction from the earlier keyframe's state
-with its mismatch at the later keyframe spread linearly in time (a bridge). The frames of
-an initialisation get their poses that way only after it succeeded (retroactively): the
-offline backward pass of a run can use them.
+until they are marginalised; the frames between them are posed when processed and again by
+the IMU after every window update (:mod:`vio_depth.vio.bridge`).
 """
 
 from __future__ import annotations
@@ -41,7 +38,6 @@ import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from matchers import Features, Matcher
 from vio_core.camera import Camera
@@ -50,11 +46,12 @@ from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
 from ..landmarks import LandmarkEstimator
-from ..poses import adjoint, detect_still_interval, preintegrate
+from .bridge import FrameBridges
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitKind, InitResult
-from .matching import EpipolarGatedMatcher, rotation_free_flow
+from .matching import EpipolarGatedMatcher
+from .rest import RestDetector, RestTest
 from .settings import VioSettings
 
 log = logging.getLogger(__name__)
@@ -125,16 +122,11 @@ class VioEstimator:
         self._times: dict[int, float] = {}
         self._last_visual_t = -np.inf
         self._last_id: int | None = None
-        # (id, t, features) of the previous frame, and the last frame that got a pose (rest tests)
-        self._previous: tuple[int, float, Features] | None = None
-        self._posed_previous: int | None = None
+        self.rest = RestDetector(self.factors, matcher, settings.rest, settings.imu.max_sample_gap_s)
         #: the landmark window's last update and the last initialisation (diagnostics)
         self.last_update = None
         self.last_init: InitResult | None = None
-        # frames posed again after every window update, between the keyframes around them:
-        # (frame, t, keyframe before, keyframe after), and those still waiting for the keyframe after
-        self._bridged: list[tuple[int, float, int, int]] = []
-        self._unbridged: list[tuple[int, float, int]] = []
+        self.bridges = FrameBridges(self.factors)
 
     @property
     def imu(self) -> ImuData:
@@ -159,14 +151,7 @@ class VioEstimator:
         w = self.landmarks.window
         ids = w.keyframe_ids
         self.history.update_keyframes(self.session, ids, np.stack([w.pose(f) for f in ids]), w.joint_covariance(ids))
-        keep = []
-        for f, t, a, b in self._bridged:
-            if a in ids and b in ids:
-                T, C = self._bridge(t, a, b)
-                if T is not None:  # anchored to the later keyframe, which stays in the window longer
-                    self.history.add_frame(f, self.session, b, T, C)
-                keep.append((f, t, a, b))
-        self._bridged = keep
+        self.bridges.refresh(w, self._times, self.history, self.session)
 
     def _health(self) -> str:
         """Why the newest keyframe's state is implausible ("" when it is fine)."""
@@ -187,6 +172,7 @@ class VioEstimator:
         log.info("vio: lost at frame %d: %s", frame_id, reason)
         self.landmarks = None
         self.initializer.reset()
+        self.rest.reset()
         self.session += 1
         return VioFrame(frame_id, VioStatus.LOST, f"odometry lost: {reason}; re-initialising")
 
@@ -228,57 +214,17 @@ class VioEstimator:
             return why
         # the other frames of the initialisation: posed between the keyframes around them,
         # again after every window update while those keyframes are in the window
-        key_t = [(k.frame_id, k.t) for k in res.keyframes]
-        self._bridged, self._unbridged = [], []
-        for f, t in res.frames:
-            before = [k for k, kt in key_t if kt <= t]
-            after = [k for k, kt in key_t if kt > t]
-            if before and after:
-                self._bridged.append((f, t, before[-1], after[0]))
+        self.bridges.start([(k.frame_id, k.t) for k in res.keyframes], list(res.frames))
         self._sync_history()
         self._last_visual_t = res.keyframes[-1].t
         return ""
-
-    def _bridge(self, t: float, a: int, b: int):
-        """Camera pose (4, 4) of a frame at ``t`` between keyframes ``a`` and ``b`` and its
-        covariance (6, 6) relative to ``b``, or ``(None, None)``.
-
-        The IMU prediction from ``a``'s state, its mismatch at ``b`` spread linearly in time
-        (a bridge). Covariance: the preintegration noise from ``t`` to ``b``, plus the share
-        ``(1 - s)^2`` of the relative uncertainty of ``a`` and ``b`` (``s`` the fraction of
-        the interval elapsed at ``t``).
-        """
-        w = self.landmarks.window
-        est = w.estimate
-        st = self.factors.state_of(est, a, self._times[a])
-        t_b = self._times[b]
-        end, _, _ = self.factors.predict(st, t)
-        end_b, _, _ = self.factors.predict(st, t_b)
-        if end is None or end_b is None:
-            return None, None
-        _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
-        T_b = self.factors.state_of(est, b, t_b).T_w_i
-        s = (t - st.t) / max(t_b - st.t, 1e-12)
-        dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
-        T = end.T_w_i.copy()
-        T[:3, :3] = Rotation.from_rotvec(s * dR).as_matrix() @ T[:3, :3]
-        T[:3, 3] = T[:3, 3] + s * (T_b[:3, 3] - end_b.T_w_i[:3, 3])
-        T_w_f = T @ invert_transform(self.factors.T_c_i)
-        T_f_b = invert_transform(T_w_f) @ w.pose(b)
-        A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
-        C = A @ C_fb @ A.T
-        S = w.joint_covariance([a, b])
-        C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
-        C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
-        return T_w_f, 0.5 * (C + C.T)
 
     # ------------------------------------------------------------------ per frame
     def process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         """Process the next frame (ids and times increasing)."""
         out = self._process(frame_id, t, camera, features)
-        self._previous = (int(frame_id), float(t), features)
-        if out.T_w_c is not None or out.status == VioStatus.CONVERGING:  # posed (converging: kept in the history)
-            self._posed_previous = int(frame_id)
+        posed = out.T_w_c is not None or (out.status == VioStatus.CONVERGING and frame_id in self.history)
+        self.rest.observe(frame_id, t, features, posed)
         return out
 
     def _process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
@@ -310,80 +256,22 @@ class VioEstimator:
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
 
-    def _still_pose(self, t: float, camera: Camera, features: Features, newest: int):
-        """``(T_w_c (4, 4), rotation-free flow px)`` when the camera rests at ``t``, else None.
-
-        At rest: the IMU was still for ``init.static.min_still_s`` seconds up to ``t``, and
-        the keypoints moved less than ``init.still_flow_px`` since the previous frame once
-        the gyroscope's rotation is removed (a 1 px test against the newest keyframe fails
-        on real rests, where the platform settles by millimetres: EuRoC V1_01 drifts 1-2 px
-        over 3 s), and less than ``max_rest_flow_px`` since the newest keyframe (a slow creep
-        adds up). The pose is keyframe ``newest``'s IMU position (zero velocity since it)
-        with its orientation turned by the gyroscope (the keyframe's bias): a resting
-        platform may still tilt.
-        """
-        s = self.settings
-        st = s.init.static
-        prev = self._previous
-        if prev is None or prev[0] != self._posed_previous:
-            return None  # rest continues a posed frame only
-        t0 = max(float(self.imu.t[0]), t - st.min_still_s - st.window_s)
-        window = self.imu.window(t0, t)
-        if len(window.t) < 10:
-            return None
-        t_start, t_end = detect_still_interval(window, replace(st, start_s=0.0))
-        if t_end - t_start < st.min_still_s - 1e-6 or t_end < t - st.window_s - 1e-6:
-            return None
-        state = self._newest_state()
-        pim, _ = preintegrate(self.imu, state.t, t, self.factors.params, state.accel_bias, state.gyro_bias,
-                              s.imu.max_sample_gap_s)
-        pim_prev, _ = preintegrate(self.imu, prev[1], t, self.factors.params, state.accel_bias, state.gyro_bias,
-                                   s.imu.max_sample_gap_s)
-        if pim is None or pim_prev is None:
-            return None
-        m = self.matcher.match(features, prev[2])
-        if len(m) < s.min_tracked_landmarks:
-            return None
-        T_i_c = invert_transform(self.factors.T_c_i)
-        R_c_i = self.factors.T_c_i[:3, :3]
-        R_prev_cur = R_c_i @ pim_prev.deltaRij().matrix() @ R_c_i.T  # the camera's rotation since the previous frame
-        flow = rotation_free_flow(features.keypoints[m.idx_a], prev[2].keypoints[m.idx_b], camera, camera, R_prev_cur)
-        if flow > s.init.still_flow_px:
-            return None
-        kf = self.landmarks.keyframe_features(newest)  # a slow creep adds up: bounded since the keyframe
-        m_kf = None if kf is None else self.matcher.match(features, kf)
-        if m_kf is None or len(m_kf) < s.min_tracked_landmarks:
-            return None
-        R_kf_cur = R_c_i @ pim.deltaRij().matrix() @ R_c_i.T
-        creep = rotation_free_flow(features.keypoints[m_kf.idx_a], kf.keypoints[m_kf.idx_b], camera, camera, R_kf_cur)
-        if creep > s.max_rest_flow_px:
-            return None
-        T_kf_i = np.eye(4)
-        T_kf_i[:3, :3] = pim.deltaRij().matrix()  # IMU rotation since the keyframe, position unchanged
-        return state.T_w_i @ T_kf_i @ T_i_c, flow
-
-    def _still_frame(self, frame_id: int, t: float, camera: Camera, newest: int, T_w_c, flow: float) -> VioFrame:
-        """A resting camera's frame: its pose from :meth:`_still_pose`, with a covariance relative
-        to keyframe ``newest`` from the image motion allowed (rotation) and
-        ``still_translation_sigma_m``; the window is not updated."""
-        s = self.settings
-        rot_sigma = s.init.still_flow_px / max(camera.fx, camera.fy)
-        C = np.diag([rot_sigma ** 2] * 3 + [s.still_translation_sigma_m ** 2] * 3)
-        self.history.add_frame(frame_id, self.session, newest, T_w_c, C)
+    def _still_frame(self, frame_id: int, t: float, rest: RestTest) -> VioFrame:
+        """A resting camera's frame (:mod:`vio_depth.vio.rest`); the window is not updated."""
+        self.history.add_frame(frame_id, self.session, self.rest.anchor.keyframe, rest.T_w_c, rest.covariance)
         self._last_visual_t = t  # the images confirm the rest
         st = self._newest_state()
-        return VioFrame(frame_id, VioStatus.STILL, f"at rest: IMU still, keypoints moved {flow:.2f} px since the "
-                                                   f"previous frame (rotation removed); position of keyframe {newest}",
-                        self.history.pose(frame_id), C, False, 0, st.velocity_w, st.accel_bias, st.gyro_bias)
+        return VioFrame(frame_id, VioStatus.STILL, rest.reason, self.history.pose(frame_id), rest.covariance, False, 0,
+                        st.velocity_w, st.accel_bias, st.gyro_bias)
 
     def _track(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         s = self.settings
         w = self.landmarks.window
         newest = w.keyframe_ids[-1]
-        rest = self._still_pose(t, camera, features, newest)
-        if rest is not None:
-            return self._trusted(self._still_frame(frame_id, t, camera, newest, *rest))
         state = self._newest_state()
+        rest = self.rest.test(t, camera, features, newest, state, self.history)
+        if rest.rest:
+            return self._trusted(self._still_frame(frame_id, t, rest))
         pred, pred_cov, reason = self.factors.predict(state, t)
         if pred is None:
             return self._lose(frame_id, reason)
@@ -405,9 +293,7 @@ class VioEstimator:
             why = self._health()
             if why:
                 return self._lose(frame_id, why)
-            # the frames since the previous keyframe are re-posed between the two (a bridge)
-            self._bridged += [(f, ft, a, frame_id) for f, ft, a in self._unbridged]
-            self._unbridged = []
+            self.bridges.close(frame_id)  # the frames since the previous keyframe: bridged between the two
             self._sync_history()
             T, C, anchor = w.pose(frame_id), np.zeros((6, 6)), frame_id
             n_lm = len(fl.points)  # landmarks observed in this keyframe
@@ -421,7 +307,7 @@ class VioEstimator:
                 T, C = T_prior, C_prior
             n_lm = int(fl.points.associated)
             self.history.add_frame(frame_id, self.session, anchor, T, C)
-            self._unbridged.append((frame_id, t, anchor))
+            self.bridges.add(frame_id, t, anchor)
         if visual:
             self._last_visual_t = t
         elif t - self._last_visual_t > s.max_imu_only_s:

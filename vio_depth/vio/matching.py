@@ -18,8 +18,8 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array
 
 
-def rotation_free_flow(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera, R_prev_cur) -> float:
-    """Median pixel motion of matched keypoints once the camera's rotation is removed.
+def rotation_free_displacements(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera, R_prev_cur) -> np.ndarray:
+    """Pixel motion of each matched keypoint once the camera's rotation is removed.
 
     Args:
         kp_cur: (N, 2) raw pixels in the current image. kp_prev: (N, 2) raw pixels of the
@@ -29,8 +29,9 @@ def rotation_free_flow(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera,
             the gyroscope).
 
     Returns:
-        the median distance (pixels of ``camera_prev``) between the previous keypoints and the
-        current ones rotated into the previous image; 0.0 when no ray lies in front.
+        (K,) distances (pixels of ``camera_prev``) between the previous keypoints and the
+        current ones rotated into the previous image, for the K <= N rays in front of the
+        previous camera.
     """
     kp_cur = check_array("kp_cur", kp_cur, (None, 2))
     kp_prev = check_array("kp_prev", kp_prev, (len(kp_cur), 2))
@@ -41,11 +42,16 @@ def rotation_free_flow(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera,
                             np.ones(len(ic))])
     r = rays @ R.T
     front = r[:, 2] > 1e-6
-    if not front.any():
-        return 0.0
     pred = np.column_stack([camera_prev.fx * r[front, 0] / r[front, 2] + camera_prev.cx,
                             camera_prev.fy * r[front, 1] / r[front, 2] + camera_prev.cy])
-    return float(np.median(np.linalg.norm(pred - ip[front], axis=1)))
+    return np.linalg.norm(pred - ip[front], axis=1)
+
+
+def rotation_free_flow(kp_cur, kp_prev, camera_cur: Camera, camera_prev: Camera, R_prev_cur) -> float:
+    """Median of :func:`rotation_free_displacements` (same arguments), pixels; 0.0 when no ray
+    lies in front."""
+    d = rotation_free_displacements(kp_cur, kp_prev, camera_cur, camera_prev, R_prev_cur)
+    return float(np.median(d)) if len(d) else 0.0
 
 
 class EpipolarGatedMatcher:

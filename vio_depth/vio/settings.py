@@ -84,6 +84,79 @@ class VioInitSettings:
             raise SettingsError("VioInitSettings: max_duration_s must exceed min_duration_s")
 
 
+@dataclass(frozen=True)
+class RestSettings:
+    """The zero-velocity test of the odometry (:mod:`vio_depth.vio.rest`, in the style of
+    OpenVINS's ``UpdaterZeroVelocity``) and the uncertainty of a resting frame.
+
+    A tracked frame rests when all of these pass:
+
+    * IMU: the samples since the previous frame (at least ``min_imu_s`` of them), averaged
+      over blocks of ``imu_block_s`` (vibration averages out), fit the zero-velocity
+      hypothesis, gyroscope = bias and accelerometer = gravity in the body frame + bias (the
+      newest keyframe's estimates), within the IMU's white-noise densities
+      times ``imu_noise_multiplier`` and the estimates' own uncertainty (``tilt_sigma_rad``,
+      ``accel_bias_sigma``, ``gyro_bias_sigma``): chi-square below its ``chi2_probability``
+      quantile for the residual's dimension;
+    * images, frame to frame: the median keypoint motion since the previous frame, rotation
+      removed with the gyroscope, is below ``max_disparity_px``, over at least
+      ``min_features`` matches;
+    * images, since the rest began: the distance the camera moved since the frame whose pose
+      the rest holds (the anchor), over the scene's depth, estimated from the rotation-free
+      keypoint motion (:func:`~vio_depth.vio.rest.translation_over_depth`), is below
+      ``max_anchor_motion``. The IMU cannot tell rest from uniform motion and the
+      frame-to-frame motion of a creeping camera hides in the keypoint noise; its motion
+      since the anchor grows until this test fails.
+
+    A resting frame keeps the anchor's position (its orientation follows the gyroscope) and
+    its covariance grows with the time ``dt`` since the anchor: variance
+    ``translation_random_walk ** 2 * dt`` and ``rotation_random_walk ** 2 * dt`` on top of
+    the anchor's (a motion too slow to detect still adds up).
+
+    Attributes:
+        imu_noise_multiplier: factor on the IMU noise variances in the test (OpenVINS
+            ``zupt_noise_multiplier``): a resting platform vibrates. On the EuRoC V1_01 still
+            slice (rotors running) the 0.25 s accelerometer standard deviation is 0.1-1.3 m/s^2
+            against the datasheet's 0.03 per sample; 400 lets that rest pass while a hand-held
+            camera's rotation (0.1 rad/s and more) still fails.
+        chi2_probability: quantile of the chi-square distribution used as the IMU threshold.
+        tilt_sigma_rad / accel_bias_sigma / gyro_bias_sigma: 1-sigma of the newest keyframe's
+            roll/pitch (rad), accelerometer bias (m/s^2) and gyroscope bias (rad/s) in the test.
+        min_imu_s: shortest IMU interval tested, seconds (earlier samples are added).
+        imu_block_s: seconds of IMU samples averaged into one residual of the test.
+        max_disparity_px: largest median keypoint motion since the previous frame, pixels.
+        max_anchor_motion: largest distance moved since the anchor over the scene's depth
+            (0.002: 1 cm at 5 m). On the EuRoC V1_01 still slice (rotors running) the estimate
+            grows by about 0.13 % per second (the gyroscope bias of the static start is off by
+            about 1e-3 rad/s under the vibration), so the rest there ends after 1.5-2 s.
+        min_features: fewest matches for either image test.
+        translation_random_walk: m/sqrt(s), growth of a resting frame's position sigma.
+        rotation_random_walk: rad/sqrt(s), growth of its orientation sigma.
+    """
+
+    imu_noise_multiplier: float = 400.0
+    chi2_probability: float = 0.99
+    tilt_sigma_rad: float = 0.01
+    accel_bias_sigma: float = 0.05
+    gyro_bias_sigma: float = 0.002
+    min_imu_s: float = 0.1
+    imu_block_s: float = 0.05
+    max_disparity_px: float = 1.5
+    max_anchor_motion: float = 0.002
+    min_features: int = 20
+    translation_random_walk: float = 0.005
+    rotation_random_walk: float = 0.001
+
+    def __post_init__(self):
+        require_positive(self, "imu_noise_multiplier", "tilt_sigma_rad", "accel_bias_sigma", "gyro_bias_sigma",
+                         "min_imu_s", "imu_block_s", "max_disparity_px", "max_anchor_motion", "translation_random_walk",
+                         "rotation_random_walk")
+        if not 0.0 < self.chi2_probability < 1.0:
+            raise SettingsError(f"RestSettings.chi2_probability must be in (0, 1), got {self.chi2_probability}")
+        if self.min_features < 5:
+            raise SettingsError(f"RestSettings.min_features must be >= 5, got {self.min_features}")
+
+
 def _vio_window() -> LandmarkSettings:
     """The landmark window of the VIO: only the first keyframe is anchored (the IMU factors
     carry the rest), so its absolute prior is loose; the estimator adds its own gauge prior."""
@@ -126,14 +199,10 @@ class VioSettings:
             (:mod:`vio_depth.vio.matching`), ideal pixels.
         history_frames: frames whose poses are remembered (for relative poses with old
             keyframes and the offline backward pass); bounds memory.
-        still_translation_sigma_m: 1-sigma of a resting frame's position relative to the newest
-            keyframe, metres. A frame rests when the IMU was still for
-            ``init.static.min_still_s``, its keypoints moved less than ``init.still_flow_px``
-            since the previous frame and less than ``max_rest_flow_px`` since the newest
-            keyframe (rotation removed): it keeps the keyframe's position, its orientation
-            follows the gyroscope, and the window is not updated, so a resting camera
-            neither drifts on the IMU alone nor loses tracking for lack of parallax.
-        max_rest_flow_px: see ``still_translation_sigma_m``, pixels.
+        rest: the zero-velocity test (:class:`RestSettings`). A resting frame keeps the
+            position of the frame before the rest, its orientation follows the gyroscope, and
+            the window is not updated, so a resting camera neither drifts on the IMU alone
+            nor loses tracking for lack of parallax.
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)
@@ -154,14 +223,12 @@ class VioSettings:
     predict_velocity_sigma: float = 0.05
     predict_gyro_sigma: float = 0.002
     history_frames: int = 20000
-    still_translation_sigma_m: float = 0.005
-    max_rest_flow_px: float = 3.0
+    rest: RestSettings = field(default_factory=RestSettings)
 
     def __post_init__(self):
         require_positive(self, "velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m",
                          "gauge_yaw_sigma_rad", "tilt_sigma_rad", "max_speed_m_s", "max_accel_bias", "max_gyro_bias",
-                         "max_imu_only_s", "epipolar_threshold_px", "predict_velocity_sigma", "predict_gyro_sigma",
-                         "still_translation_sigma_m", "max_rest_flow_px")
+                         "max_imu_only_s", "epipolar_threshold_px", "predict_velocity_sigma", "predict_gyro_sigma")
         if self.window.pose_prior.absolute_on_every_keyframe:
             raise SettingsError("VioSettings.window.pose_prior.absolute_on_every_keyframe must be false: "
                                 "the IMU factors, not sequence poses, carry the window")

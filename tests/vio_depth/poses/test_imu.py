@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from vio_core.camera import Camera
 from vio_core.errors import InputError
 from vio_core.geometry import invert_transform, make_transform, relative_transform, rotation_angle_deg
+from vio_depth.evaluation import mean_nees_bounds, nees
 from vio_depth.frame import Frame, ImuData
 from vio_depth.poses.imu import ImuPoseSettings, ImuPoseSource, adjoint
 
@@ -131,9 +132,14 @@ def test_covariance_matches_monte_carlo_errors():
     emp = np.cov(np.array(xis).T)
     ratio = np.diag(emp) / np.diag(cov)
     assert np.all((ratio > 0.65) & (ratio < 1.4)), ratio  # 150 draws: +-3 sigma of a variance estimate
-    # normalised squared error ~ chi2(6): mean 6
-    nees = np.mean([x @ np.linalg.solve(cov, x) for x in xis])
-    assert 4.5 < nees < 7.5
+    # normalised squared error ~ chi2(6): the mean of 150 independent draws lies in the 99 %
+    # interval of chi2(900) / 150, [5.3, 6.75]; the same check on cov / 9 (sigma / 3) must fail
+    lo, hi = mean_nees_bounds(6, len(xis), probability=0.99)
+    errors = np.array(xis)
+    consistent = nees(errors, np.repeat(cov[None], len(xis), 0)).mean()
+    assert lo < consistent < hi, (lo, consistent, hi)
+    overconfident = nees(errors, np.repeat(cov[None] / 9.0, len(xis), 0)).mean()
+    assert not lo < overconfident < hi, (lo, overconfident, hi)
 
 
 def test_velocity_sources_with_sequence_poses():

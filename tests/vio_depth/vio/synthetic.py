@@ -111,11 +111,25 @@ class _StillThen(SinusoidTrajectory):
         return self._warp(self.euler, t, order)
 
 
+def creeping(speed_m_s: float, still_s: float, direction_w=(0.6, 0.8, 0.0), ramp_s: float = 0.5) -> SinusoidTrajectory:
+    """A camera that rests until ``still_s``, then creeps along a straight line in the world
+    direction ``direction_w`` (normalised) at ``speed_m_s``, reached smoothly over ``ramp_s``;
+    its orientation is constant (yaw 0.7 rad: it looks across the box, at a mix of the walls)."""
+    d = np.asarray(direction_w, float)
+    d = d / np.linalg.norm(d)
+    flat = np.zeros((3, 1))
+    position = Sinusoids([1.0, 0.9, 1.4], speed_m_s * d, flat, flat, flat)
+    euler = Sinusoids([0.7, 0.1, 0.0], [0.0, 0.0, 0.0], flat, flat, flat)
+    return _StillThen(SinusoidTrajectory(position, euler, 0.0, 60.0), still_s, ramp_s)
+
+
 def make_scene(duration_s: float = 4.0, rate_hz: float = 20.0, n_points: int = 3000, pixel_sigma: float = 0.5,
-               still_s: float = 0.0, seed: int = 0, imu_noise: ImuNoise | None = ImuNoise()) -> VioScene:
-    """A synthetic run (module docstring): frames from t = 0.5 s, IMU at 200 Hz from t = 0."""
+               still_s: float = 0.0, seed: int = 0, imu_noise: ImuNoise | None = ImuNoise(),
+               trajectory: SinusoidTrajectory | None = None) -> VioScene:
+    """A synthetic run (module docstring): frames from t = 0.5 s, IMU at 200 Hz from t = 0;
+    the hand-held walk (:func:`hand_held`) unless ``trajectory`` is given."""
     rng = np.random.default_rng(seed)
-    traj = hand_held(still_s)
+    traj = hand_held(still_s) if trajectory is None else trajectory
     t_imu = np.arange(int(round((duration_s + 1.0) * 200)) + 1) / 200.0
     imu, truth = simulate_imu(traj, t_imu, invert_transform(T_I_C), noise=imu_noise, seed=seed)
     t_frames = 0.5 + np.arange(int(round(duration_s * rate_hz))) / rate_hz

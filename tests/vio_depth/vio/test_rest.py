@@ -1,0 +1,122 @@
+"""Rest detection of the odometry (vio_depth/vio/rest.py) on SIMULATED scenes of known truth:
+a creeping camera is never held more than 1 cm from the truth, a true rest is still detected,
+the covariance of a resting frame grows with time, and the IMU's zero-velocity chi-square."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.stats import chi2 as chi2_distribution
+
+from vio_core.errors import SettingsError
+from vio_core.geometry import invert_transform
+from vio_depth.frame import ImuData
+from vio_depth.pipeline import POSE_PRESETS
+from vio_depth.vio import RestSettings
+from vio_depth.vio import VioEstimator, VioStatus, zero_velocity_chi2
+
+from .synthetic import IdMatcher, creeping, make_scene
+
+pytest.importorskip("gtsam")
+
+SETTINGS = POSE_PRESETS["vio"]
+STILL_S = 2.0  # the creeping scenes rest until then (static start at 1 s), then creep
+
+
+def _run(scene):
+    est = VioEstimator(scene.imu, IdMatcher(), SETTINGS)
+    return [est.process(f.index, f.timestamp, f.camera, scene.features[k]) for k, f in enumerate(scene.frames)]
+
+
+def _errors(scene, out):
+    """{frame: metres} of every posed frame of the first session: its position relative to the
+    start frame, in the start camera, against the truth (the world's yaw is arbitrary)."""
+    start = next(i for i, v in enumerate(out) if v.initialised)
+    end = next((i for i, v in enumerate(out) if i > start and v.status == VioStatus.LOST), len(out))
+    Ts_e, Ts_t = invert_transform(out[start].T_w_c), invert_transform(scene.T_w_c[start])
+    return {i: float(np.linalg.norm((Ts_e @ out[i].T_w_c)[:3, 3] - (Ts_t @ scene.T_w_c[i])[:3, 3]))
+            for i in range(start, end) if out[i].ok}
+
+
+@pytest.mark.parametrize("speed", [0.01, 0.03, 0.10])
+def test_a_creeping_camera_is_never_held_more_than_1cm_from_the_truth(speed):
+    """Still until 2 s, then a straight creep at ``speed`` m/s (mostly along the view: the
+    hardest direction for the images). Every posed frame stays within 1 cm of the truth and
+    the rest ends once the camera creeps.
+
+    The rule before (IMU still for 1 s, keypoints within 1 px of the previous frame and 3 px of
+    the newest keyframe; measured on this scene, seed 11, with the code of main at b331fd9)
+    held the camera at the start's position for 69 / 59 / 22 frames after the creep began,
+    3.2 / 8.1 / 8.5 cm from the truth at 1 / 3 / 10 cm/s, with a constant 5 mm sigma. Measured
+    now: at most 0.70 / 0.75 / 0.69 cm."""
+    scene = make_scene(duration_s=5.0, seed=11, trajectory=creeping(speed, still_s=STILL_S))
+    out = _run(scene)
+    err = _errors(scene, out)
+    worst = max(err, key=err.get)
+    assert err[worst] < 0.01, (worst, err[worst], out[worst].status, out[worst].reason)
+    creeping_frames = [i for i, f in enumerate(scene.frames) if f.timestamp > STILL_S + 0.5]
+    assert any(out[i].status != VioStatus.STILL for i in creeping_frames)
+
+
+def test_a_true_rest_is_detected_and_its_covariance_grows():
+    """The same scene's still second (1 s to 2 s after the static start): every frame rests, at
+    the start's position (the true camera too), and its position sigma grows with the time at
+    rest (a random walk: ``translation_random_walk * sqrt(dt)``), never frozen."""
+    scene = make_scene(duration_s=5.0, seed=11, trajectory=creeping(0.03, still_s=STILL_S))
+    out = _run(scene)
+    start = next(i for i, v in enumerate(out) if v.initialised)
+    resting = [i for i, f in enumerate(scene.frames) if start < i and f.timestamp < STILL_S - 0.05]
+    assert len(resting) >= 15
+    assert all(out[i].status == VioStatus.STILL for i in resting), {out[i].status.value for i in resting}
+    assert max(np.linalg.norm(out[i].T_w_c[:3, 3] - out[start].T_w_c[:3, 3]) for i in resting) < 1e-3
+    sigma = np.array([np.sqrt(out[i].covariance[3, 3]) for i in resting])
+    assert np.all(np.diff(sigma) > 0), sigma
+    dt = scene.frames[resting[-1]].timestamp - scene.frames[resting[0]].timestamp
+    rw = SETTINGS.rest.translation_random_walk
+    assert sigma[-1] ** 2 - sigma[0] ** 2 == pytest.approx(rw ** 2 * dt, rel=1e-6)
+
+
+def _still_imu(n: int, accel_offset=(0.0, 0.0, 0.0), seed: int = 0) -> ImuData:
+    """``n`` samples at 200 Hz of a level IMU at rest (gravity along -z), datasheet white noise."""
+    rng = np.random.default_rng(seed)
+    base = ImuData(np.arange(2) / 200.0, np.zeros((2, 3)), np.zeros((2, 3)), np.eye(4))
+    dt = 1 / 200.0
+    gyro = base.gyro_noise / np.sqrt(dt) * rng.standard_normal((n, 3))
+    accel = (np.array([0.0, 0.0, 9.81]) + np.asarray(accel_offset)
+             + base.accel_noise / np.sqrt(dt) * rng.standard_normal((n, 3)))
+    return replace(base, t=np.arange(n) * dt, gyro=gyro, accel=accel)
+
+
+def test_zero_velocity_chi2_is_chi_square_at_rest_and_large_when_accelerating():
+    """With the datasheet noise (multiplier 1) and exactly known biases and tilt (their sigmas
+    ~0: nothing absorbed), 200 windows of 0.25 s of a resting IMU give a chi-square whose mean
+    lies in the 99 % interval of the mean of 200 draws of chi2(dof); a constant 0.3 m/s^2
+    acceleration (a camera reaching 3 cm/s in 0.1 s) fails the 0.99 quantile. The default
+    multiplier (400: EuRoC's rotors shake the resting platform) is far more tolerant: it needs
+    1 m/s^2 over 0.1 s; slower motion is left to the image tests (the creep tests above)."""
+    s = RestSettings(imu_noise_multiplier=1.0, tilt_sigma_rad=1e-6, accel_bias_sigma=1e-6, gyro_bias_sigma=1e-6)
+    values = []
+    for seed in range(200):
+        c, dof = zero_velocity_chi2(_still_imu(50, seed=seed), np.eye(3), np.zeros(3), np.zeros(3), s)
+        values.append(c)
+    trials = len(values)
+    lo, hi = (chi2_distribution.ppf(q, dof * trials) / trials for q in (0.005, 0.995))
+    assert lo < np.mean(values) < hi, (lo, np.mean(values), hi, dof)
+    moving, dof = zero_velocity_chi2(_still_imu(50, accel_offset=(0.3, 0.0, 0.0)), np.eye(3), np.zeros(3),
+                                     np.zeros(3), s)
+    assert moving > chi2_distribution.ppf(0.99, dof)
+    default = RestSettings()
+    moving, dof = zero_velocity_chi2(_still_imu(20, accel_offset=(1.0, 0.0, 0.0)), np.eye(3), np.zeros(3),
+                                     np.zeros(3), default)
+    assert moving > chi2_distribution.ppf(default.chi2_probability, dof), moving
+
+
+def test_rest_settings_are_checked():
+    with pytest.raises(SettingsError, match="chi2_probability"):
+        RestSettings(chi2_probability=1.0)
+    with pytest.raises(SettingsError, match="min_features"):
+        RestSettings(min_features=2)
+    with pytest.raises(SettingsError, match="translation_random_walk"):
+        RestSettings(translation_random_walk=0.0)

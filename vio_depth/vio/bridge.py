@@ -1,0 +1,104 @@
+"""The poses of the frames between two keyframes of the odometry (in-between frames).
+
+A frame between two keyframes is posed when it is processed (against the landmarks, by
+:class:`~vio_depth.vio.VioEstimator`) and again, after every window update while both
+keyframes are in the window, by the IMU between them: the prediction from the earlier
+keyframe's state with its mismatch at the later keyframe spread linearly in time (a
+bridge). The frames of an initialisation get their poses that way only after it succeeded
+(retroactively): the offline backward pass of a run can use them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from scipy.spatial.transform import Rotation
+
+from vio_core.geometry import invert_transform
+
+from ..landmarks import LandmarkWindow
+from ..poses import adjoint
+from .history import PoseHistory
+from .imu_factors import ImuFactors
+
+
+class FrameBridges:
+    """The in-between frames of one session and their bridges (module docstring).
+
+    Args:
+        factors: the odometry's IMU factors (states of the window's keyframes, prediction).
+    """
+
+    def __init__(self, factors: ImuFactors):
+        self.factors = factors
+        # frames posed again after every window update: (frame, t, keyframe before, keyframe after),
+        # and those still waiting for the keyframe after: (frame, t, keyframe before)
+        self._bridged: list[tuple[int, float, int, int]] = []
+        self._unbridged: list[tuple[int, float, int]] = []
+
+    def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
+        """A new session from an initialisation: its ``keyframes`` and other ``frames``
+        (``(id, t seconds)`` each); a frame between two keyframes is bridged between them."""
+        self._bridged, self._unbridged = [], []
+        for f, t in frames:
+            before = [k for k, kt in keyframes if kt <= t]
+            after = [k for k, kt in keyframes if kt > t]
+            if before and after:
+                self._bridged.append((f, t, before[-1], after[0]))
+
+    def add(self, frame_id: int, t: float, keyframe: int) -> None:
+        """Frame ``frame_id`` at ``t`` seconds follows ``keyframe`` (the newest); it is bridged once
+        the next keyframe comes (:meth:`close`)."""
+        self._unbridged.append((int(frame_id), float(t), int(keyframe)))
+
+    def close(self, keyframe: int) -> None:
+        """``keyframe`` is new: the frames since the previous keyframe are bridged between the two."""
+        self._bridged += [(f, ft, a, int(keyframe)) for f, ft, a in self._unbridged]
+        self._unbridged = []
+
+    def refresh(self, window: LandmarkWindow, times: Mapping[int, float], history: PoseHistory,
+                session: int) -> None:
+        """Pose the bridged frames again from the window's latest estimate (``times``: seconds of
+        the keyframes); frames whose keyframes left the window are kept as they are."""
+        ids = window.keyframe_ids
+        keep = []
+        for f, t, a, b in self._bridged:
+            if a in ids and b in ids:
+                T, C = self.pose(window, times, t, a, b)
+                if T is not None:  # anchored to the later keyframe, which stays in the window longer
+                    history.add_frame(f, session, b, T, C)
+                keep.append((f, t, a, b))
+        self._bridged = keep
+
+    def pose(self, window: LandmarkWindow, times: Mapping[int, float], t: float, a: int, b: int):
+        """Camera pose (4, 4) of a frame at ``t`` between keyframes ``a`` and ``b`` and its
+        covariance (6, 6) relative to ``b``, or ``(None, None)``.
+
+        The IMU prediction from ``a``'s state, its mismatch at ``b`` spread linearly in time
+        (a bridge). Covariance: the preintegration noise from ``t`` to ``b``, plus the share
+        ``(1 - s)^2`` of the relative uncertainty of ``a`` and ``b`` (``s`` the fraction of
+        the interval elapsed at ``t``).
+        """
+        w = window
+        est = w.estimate
+        st = self.factors.state_of(est, a, times[a])
+        t_b = times[b]
+        end, _, _ = self.factors.predict(st, t)
+        end_b, _, _ = self.factors.predict(st, t_b)
+        if end is None or end_b is None:
+            return None, None
+        _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
+        T_b = self.factors.state_of(est, b, t_b).T_w_i
+        s = (t - st.t) / max(t_b - st.t, 1e-12)
+        dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
+        T = end.T_w_i.copy()
+        T[:3, :3] = Rotation.from_rotvec(s * dR).as_matrix() @ T[:3, :3]
+        T[:3, 3] = T[:3, 3] + s * (T_b[:3, 3] - end_b.T_w_i[:3, 3])
+        T_w_f = T @ invert_transform(self.factors.T_c_i)
+        T_f_b = invert_transform(T_w_f) @ w.pose(b)
+        A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
+        C = A @ C_fb @ A.T
+        S = w.joint_covariance([a, b])
+        C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
+        C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
+        return T_w_f, 0.5 * (C + C.T)
