@@ -31,6 +31,7 @@ from .folder import OutputFolder, OutputMode
 from .kept import KeptFrame, pack_record, slim_evaluation, unpack_record
 from .ranges import check_settings
 from .outputs import RunOutputs
+from .output_poses import OutputPoses
 from .overlap import (
     OrderedWriter,
     Prefetcher,
@@ -178,6 +179,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     t_start = time.perf_counter()
     evaluate = settings.evaluate and sequence.has_gt_depth
     evaluate_points = not pipeline.settings.points.uses_ground_truth  # reference points come from the GT
+    poses = OutputPoses(sequence, pipeline, n)  # the outputs see the run's own poses only
 
     def finish_frame(frame: Frame, res: FrameResult, write: bool = True) -> tuple[FrameRecord, FrameEvaluation | None]:
         t = time.perf_counter()
@@ -206,6 +208,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     def write_job(i: int, frame: Frame, res: FrameResult, journal: bool = True):
         """The writer's job for frame ``i``: its files, evaluation and record, then its journal line."""
         replay = i < plan.start and journal
+        frame = poses.output_frame(frame, res)  # here, in frame order: the run's pose of a frame chains on earlier ones
 
         def job() -> None:
             record, evaluation = finish_frame(frame, res, write=not replay)
