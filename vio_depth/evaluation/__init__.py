@@ -13,7 +13,6 @@ module                 job
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 ``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
-``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
@@ -45,7 +44,6 @@ from .reference_points import (
     parse_points_spec,
     random_samples,
 )
-from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
 from .trajectory import (
     AteResult,
     CameraTrajectory,
@@ -62,7 +60,6 @@ from .trajectory import (
 
 __all__ = [
     "CROPS",
-    "EXECUTORS",
     "POINT_SPEC_FORMS",
     "STUDIES",
     "AteResult",
@@ -70,7 +67,6 @@ __all__ = [
     "DepthMetrics",
     "ErrorStats",
     "EvalMask",
-    "ExecutorSettings",
     "FrameEvaluation",
     "ImuNoiseBoost",
     "OutlierDraw",
@@ -83,9 +79,6 @@ __all__ = [
     "RpeResult",
     "SparsePoints",
     "Study",
-    "Task",
-    "TaskCache",
-    "TaskError",
     "absolute_trajectory_error",
     "add_outliers",
     "aggregate_point_accuracy",
@@ -97,12 +90,10 @@ __all__ = [
     "depth_reprojection_errors",
     "evaluate_frame",
     "evaluate_propagation",
-    "execute_task",
     "ground_truth_frames",
     "lidar_beams",
     "lidar_points",
     "oracle_fit",
-    "package_version",
     "pairs_by_path",
     "parse_points_spec",
     "perturb_imu",
@@ -111,7 +102,6 @@ __all__ = [
     "random_samples",
     "read_trajectory_tum",
     "relative_pose_error",
-    "run_tasks",
     "shift_pixels",
     "umeyama_alignment",
     "write_trajectory_tum",
