@@ -9,7 +9,7 @@ module                 job
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
 ``masks``              :class:`EvalMask`: depth caps and the KITTI Garg / Eigen crops
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
-``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``reference_points``   the LiDAR / random samplers of ``--points lidar:N`` / ``random:N``
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 ``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
@@ -36,14 +36,7 @@ from .perturb import (
     shift_pixels,
 )
 from .point_accuracy import PointAccuracy, point_depth_errors
-from .reference_points import (
-    POINT_SPEC_FORMS,
-    PointSourceKind,
-    PointSourceSpec,
-    lidar_beams,
-    parse_points_spec,
-    random_samples,
-)
+from .reference_points import beam_rows, lidar_beams, random_samples
 from .trajectory import (
     AteResult,
     CameraTrajectory,
@@ -60,7 +53,6 @@ from .trajectory import (
 
 __all__ = [
     "CROPS",
-    "POINT_SPEC_FORMS",
     "STUDIES",
     "AteResult",
     "CameraTrajectory",
@@ -72,8 +64,6 @@ __all__ = [
     "OutlierDraw",
     "PerturbedSequence",
     "PointAccuracy",
-    "PointSourceKind",
-    "PointSourceSpec",
     "PoseNoise",
     "PropagationErrors",
     "RpeResult",
@@ -84,6 +74,7 @@ __all__ = [
     "aggregate_point_accuracy",
     "associate",
     "average_metrics",
+    "beam_rows",
     "compute_metrics",
     "crop_bounds",
     "depth_noise",
@@ -95,7 +86,6 @@ __all__ = [
     "lidar_points",
     "oracle_fit",
     "pairs_by_path",
-    "parse_points_spec",
     "perturb_imu",
     "perturb_pose",
     "point_depth_errors",

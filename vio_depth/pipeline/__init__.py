@@ -7,6 +7,7 @@ module             job
 ``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`, :class:`PreparedFrame`
 ``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
 ``landmark_points`` :class:`LandmarkPointsStage`: multi-view landmarks over a keyframe window
+``point_source``   :class:`PointSourceSpec` (``--points``: sfm, landmarks, lidar:N, random:N)
 ``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML)
 ``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
 ``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
@@ -15,6 +16,7 @@ module             job
 
 from .landmark_points import LandmarkPointsStage
 from .pipeline import Pipeline
+from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, parse_points_spec
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import PRESET_FAMILIES, PipelineSettings
@@ -23,6 +25,7 @@ from .stream import FrameStream
 
 __all__ = [
     "PIPELINE_STAGES",
+    "POINT_SPEC_FORMS",
     "PRESET_FAMILIES",
     "FrameResult",
     "FrameStatus",
@@ -33,9 +36,12 @@ __all__ = [
     "PairStatus",
     "Pipeline",
     "PipelineSettings",
+    "PointSourceKind",
+    "PointSourceSpec",
     "PointsOutcome",
     "PreparedFrame",
     "TwoViewPoints",
     "decide_frame_status",
     "most_certain_per_keypoint",
+    "parse_points_spec",
 ]

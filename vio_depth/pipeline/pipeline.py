@@ -21,11 +21,11 @@ from ..disparity import (
     create_disparity_source,
     missing_disparity_reason,
 )
-from ..evaluation import PointSourceKind
 from ..frame import Frame
 from ..poses import GroundTruthPoses, PoseSource, TrackingPoseSource, VioSettings, create_pose_source
 from ..rescale import Rescaler, sample_bilinear
 from .landmark_points import LandmarkPointsStage
+from .point_source import PointSourceKind
 from .points import TwoViewPoints
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
