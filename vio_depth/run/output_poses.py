@@ -27,7 +27,8 @@ differ from the per-frame clouds' placement by the smoother's correction.
 The sequence's poses are read elsewhere only to *evaluate* the run, and only into fields
 labelled as such: ``metrics.json`` ``trajectory.ate``, ``trajectory.rpe``,
 ``trajectory.reference_poses`` and ``trajectory.note`` (:func:`~vio_depth.run.trajectory.run_trajectory`),
-and, with ``--calibrate-poses`` (which needs them), ``pose_calibration``.
+and, under ``--poses gt`` only, the ``--calibrate-poses`` pre-pass (``pose_calibration``:
+it calibrates the poses the run then uses). ``tests/vio_depth/run/test_pose_leak.py`` checks it.
 """
 
 from __future__ import annotations
