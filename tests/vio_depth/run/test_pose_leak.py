@@ -35,7 +35,8 @@ from vio_depth.evaluation import read_trajectory_tum
 
 REPO = Path(__file__).resolve().parents[3]
 ROOM = REPO / "sample_sequences" / "room"
-pytestmark = pytest.mark.skipif(not (ROOM / "sequence.json").exists(), reason="bundled samples missing")
+pytestmark = [pytest.mark.slow,  # 12 runs with every export on: about 2 minutes on 2 cores
+              pytest.mark.skipif(not (ROOM / "sequence.json").exists(), reason="bundled samples missing")]
 pytest.importorskip("gtsam")
 pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
@@ -45,8 +46,9 @@ N_ASL = 40  # at half size, about 30
 VARIANTS = ("true", "scrambled", "absent")
 #: metrics.json fields that evaluate the run against the sequence's poses (may differ)
 EVALUATION_FIELDS = {"trajectory": ("ate", "rpe", "reference_poses", "note")}
-#: fields that differ between any two runs (wall time, random ids)
-VOLATILE_FIELDS = ("seconds", "timings", "id", "created")
+#: top-level fields that differ between any two runs (wall time, random ids), per JSON file
+VOLATILE_FIELDS = {"frames.jsonl": ("seconds", "timings"), "metrics.json": ("seconds", "timings"),
+                   "vio-depth-run.json": ("id", "created"), "vio-depth-report.json": ("id", "created")}
 
 
 def _native(dst: Path, poses: str) -> Path:
@@ -86,7 +88,6 @@ def asl_master(tmp_path_factory):
     from vio_depth.simulate.asl import generate_asl_sample
     from vio_depth.simulate.generate import camera_poses, sample_spec
     from vio_depth.simulate.render import render_depth
-
     from vio_depth.simulate.scene_library import build_scene
 
     base = tmp_path_factory.mktemp("asl")
@@ -150,19 +151,13 @@ def _has_rerun() -> bool:
     return True
 
 
-def _drop(obj, keys):
-    if isinstance(obj, dict):
-        return {k: _drop(v, keys) for k, v in obj.items() if k not in keys}
-    if isinstance(obj, list):
-        return [_drop(v, keys) for v in obj]
-    return obj
-
-
 def _json_view(path: Path):
     """A JSON / JSON-lines file without its volatile and evaluation fields."""
+    volatile = VOLATILE_FIELDS.get(path.name, ())
     if path.suffix == ".jsonl":
-        return [_drop(json.loads(ln), VOLATILE_FIELDS) for ln in path.read_text().splitlines() if ln.strip()]
-    data = _drop(json.loads(path.read_text()), VOLATILE_FIELDS)
+        return [{k: v for k, v in json.loads(ln).items() if k not in volatile}
+                for ln in path.read_text().splitlines() if ln.strip()]
+    data = {k: v for k, v in json.loads(path.read_text()).items() if k not in volatile}
     if path.name == "metrics.json":
         for block, keys in EVALUATION_FIELDS.items():
             data[block] = {k: v for k, v in data[block].items() if k not in keys}
