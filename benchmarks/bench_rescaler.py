@@ -174,7 +174,7 @@ def run_sequence(path: str, points: str, depth_noise: float, outliers: float, ma
     """The temporal-filter report on one sequence (see the module docstring)."""
     from vio_depth.disparity import DisparitySettings, create_disparity_source
     from vio_depth.evaluation.metrics import average_metrics, compute_metrics
-    from vio_depth.evaluation.reference_points import parse_points_spec
+    from vio_depth.pipeline import parse_points_spec
     from vio_depth.io import open_sequence
     from vio_depth.rescale import Rescaler, RescalerSettings, sample_bilinear
 

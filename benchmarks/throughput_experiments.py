@@ -42,6 +42,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import throughput_data as data  # noqa: E402
 
+import vio_depth.run.frame_loop as frame_loop  # noqa: E402
 import vio_depth.run.runner as runner  # noqa: E402
 from vio_depth import Pipeline, PipelineSettings, open_sequence, run_sequence  # noqa: E402
 from vio_depth.pipeline import PreparedFrame  # noqa: E402
@@ -146,14 +147,14 @@ def run_variant(variant: str, view: Path, out: Path) -> float:
         runner.blas_threads = lambda n: blas_threads(None)
     if variant == "process prefetch":
         ProcessPrefetcher.context = {"sequence": seq, "settings": settings}
-        runner.Prefetcher = ProcessPrefetcher
+        frame_loop.Prefetcher = ProcessPrefetcher  # the forward pass's (backfill is off)
     shutil.rmtree(out, ignore_errors=True)
     t = time.perf_counter()
     try:
         run_sequence(seq, pipeline, out, run, progress=False, overlap=not variant.startswith("sequential"))
         return time.perf_counter() - t
     finally:
-        runner.Prefetcher = Prefetcher
+        frame_loop.Prefetcher = Prefetcher
         runner.overlap_opencv_threads = overlap_opencv_threads
         runner.prefetch_workers = prefetch_workers
         runner.blas_threads = blas_threads

@@ -34,11 +34,10 @@ from ._version import __version__
 from .cli_robot import add_input_flags, add_inspect_parser, add_output_flags, cmd_inspect, input_paths, open_input, \
     sink_factories, written_outputs
 from .disparity import DISPARITY_CHOICES, disparity_presets
-from .evaluation import POINT_SPEC_FORMS, parse_points_spec
 from .experiments import add_eval_parser, format_results, request_from_args, run_evaluation
 from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats
-from .pipeline import PRESET_FAMILIES, Pipeline, PipelineSettings
+from .pipeline import POINT_SPEC_FORMS, PRESET_FAMILIES, Pipeline, PipelineSettings, parse_points_spec
 from .poses import POSE_UNCERTAINTY_PRESETS, GroundTruthPoseSettings
 from .report import build_report
 from .run import (

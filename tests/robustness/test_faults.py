@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from vio_core.errors import InputError
 from vio_core.npyfile import load_array
 from vio_depth.disparity import FileDisparity
-from vio_depth.evaluation.tasks import local_ray_problem
+from vio_depth.experiments.tasks import local_ray_problem
 from vio_depth.io import open_sequence
 from vio_depth.io.marker import write_marker
 from vio_depth.run import read_frames_jsonl, staging_path

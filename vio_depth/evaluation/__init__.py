@@ -9,12 +9,11 @@ module                 job
 ``frame``              :func:`evaluate_frame`: one frame's result against its ground truth
 ``masks``              :class:`EvalMask`: depth caps and the KITTI Garg / Eigen crops
 ``point_accuracy``     :func:`point_depth_errors` of metric points against ground-truth depth
-``reference_points``   :class:`PointSourceSpec` and the LiDAR / random samplers
+``reference_points``   the LiDAR / random samplers of ``--points lidar:N`` / ``random:N``
 ``trajectory``         :class:`CameraTrajectory`, TUM files, ATE (SE(3), no scale) and RPE (evo)
 ``imu_propagation``    :func:`evaluate_propagation`: ``--poses imu`` errors and NEES against ground truth
 ``consistency``        NEES and the bounds a consistent estimator meets (mean, median, fraction)
 ``perturb``            seeded perturbations of the robustness studies (:data:`STUDIES`)
-``tasks``              :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 =====================  ======================================================================
 """
 
@@ -39,15 +38,7 @@ from .perturb import (
     shift_pixels,
 )
 from .point_accuracy import PointAccuracy, point_depth_errors
-from .reference_points import (
-    POINT_SPEC_FORMS,
-    PointSourceKind,
-    PointSourceSpec,
-    lidar_beams,
-    parse_points_spec,
-    random_samples,
-)
-from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
+from .reference_points import beam_rows, lidar_beams, random_samples
 from .trajectory import (
     AteResult,
     CameraTrajectory,
@@ -64,42 +55,34 @@ from .trajectory import (
 
 __all__ = [
     "CROPS",
-    "EXECUTORS",
-    "POINT_SPEC_FORMS",
     "STUDIES",
     "AteResult",
     "CameraTrajectory",
     "DepthMetrics",
     "ErrorStats",
     "EvalMask",
-    "ExecutorSettings",
     "FrameEvaluation",
     "ImuNoiseBoost",
     "OutlierDraw",
     "PerturbedSequence",
     "PointAccuracy",
-    "PointSourceKind",
-    "PointSourceSpec",
     "PoseNoise",
     "PropagationErrors",
     "RpeResult",
     "SparsePoints",
     "Study",
-    "Task",
-    "TaskCache",
-    "TaskError",
     "absolute_trajectory_error",
     "add_outliers",
     "aggregate_point_accuracy",
     "associate",
     "average_metrics",
+    "beam_rows",
     "compute_metrics",
     "crop_bounds",
     "depth_noise",
     "depth_reprojection_errors",
     "evaluate_frame",
     "evaluate_propagation",
-    "execute_task",
     "ground_truth_frames",
     "lidar_beams",
     "lidar_points",
@@ -107,16 +90,13 @@ __all__ = [
     "median_nees_bounds",
     "nees",
     "oracle_fit",
-    "package_version",
     "pairs_by_path",
-    "parse_points_spec",
     "perturb_imu",
     "perturb_pose",
     "point_depth_errors",
     "random_samples",
     "read_trajectory_tum",
     "relative_pose_error",
-    "run_tasks",
     "shift_pixels",
     "umeyama_alignment",
     "within_fraction_bound",

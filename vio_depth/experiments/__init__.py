@@ -15,6 +15,7 @@ module             job
 ``figures``        the PNGs (matplotlib, lazily)
 ``document``       :func:`write_document`: the Markdown report of an evaluation folder
 ``command``        :func:`run_evaluation` (:class:`EvalRequest`): tasks, executors, outputs
+``tasks``          :func:`run_tasks`: tasks sequentially, on a process pool or on Ray, cached
 ``arguments``      the command-line options of ``vio-depth eval``
 =================  ===========================================================================
 
@@ -46,14 +47,17 @@ from .results import Comparison, compare_evaluations
 from .runner import evaluate_variant, pipeline_settings, run_variant_task
 from .scores import FrameScore, aggregate
 from .studies import run_study, run_study_task
+from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
 from .variants import Variant, VariantKind, parse_variant, parse_variants, variant_groups
 
 __all__ = [
+    "EXECUTORS",
     "FIT_METHODS",
     "PROFILES",
     "Comparison",
     "EvalOutcome",
     "EvalRequest",
+    "ExecutorSettings",
     "FrameRange",
     "FrameScore",
     "FrameSelection",
@@ -61,7 +65,10 @@ __all__ = [
     "PooledSums",
     "ResolvedEntry",
     "SequenceEntry",
+    "Task",
+    "TaskCache",
     "TaskContext",
+    "TaskError",
     "Variant",
     "VariantKind",
     "add_eval_parser",
@@ -70,10 +77,12 @@ __all__ = [
     "compare_evaluations",
     "entries_from_split",
     "evaluate_variant",
+    "execute_task",
     "fit_and_depth",
     "format_results",
     "least_squares_fit",
     "open_task",
+    "package_version",
     "parse_sequence_arg",
     "parse_studies",
     "parse_variant",
@@ -85,6 +94,7 @@ __all__ = [
     "run_evaluation",
     "run_study",
     "run_study_task",
+    "run_tasks",
     "run_variant_task",
     "variant_groups",
     "write_document",

@@ -7,9 +7,10 @@ from pathlib import Path
 
 from vio_core.errors import SettingsError
 
-from ..evaluation import EXECUTORS, STUDIES, ExecutorSettings
+from ..evaluation import STUDIES
 from .command import EvalRequest, parse_studies
 from .plan import DISPARITY_OPTIONS, PROFILES, FrameSelection, SequenceEntry, entries_from_split, parse_sequence_arg
+from .tasks import EXECUTORS, ExecutorSettings
 from .variants import parse_variants, variant_groups
 
 EPILOG = """\

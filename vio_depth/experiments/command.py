@@ -1,8 +1,8 @@
 """``vio-depth eval SEQ... --out DIR``: variants x sequences (and robustness studies) as cached tasks.
 
 :func:`run_evaluation` is the API behind the command: it resolves the sequences
-(:mod:`.plan`), makes one :class:`~vio_depth.evaluation.Task` per sequence x variant and
-per sequence x study, runs them with :func:`~vio_depth.evaluation.run_tasks` (sequential, a
+(:mod:`.plan`), makes one :class:`~vio_depth.experiments.tasks.Task` per sequence x variant and
+per sequence x study, runs them with :func:`~vio_depth.experiments.tasks.run_tasks` (sequential, a
 local process pool over all cores -- the default -- or Ray; one progress bar; each result
 cached under ``DIR/cache`` so an interrupted evaluation resumes) and writes the files of
 :mod:`.results`, then ``DIR/report.md`` (and, with ``markdown=``, that document too).
@@ -20,13 +20,14 @@ from pathlib import Path
 from vio_core.errors import SettingsError
 
 from .._version import __version__
-from ..evaluation import STUDIES, ExecutorSettings, Task, TaskCache, package_version, run_tasks
+from ..evaluation import STUDIES
 from .document import write_document
 from .eval_folder import EvalFolder
 from .plan import ResolvedEntry, SequenceEntry, resolve_entry
 from .results import FRAME_COLUMNS, RESULT_COLUMNS, STUDY_COLUMNS, write_csv, write_json
 from .runner import run_variant_task
 from .studies import run_study_task
+from .tasks import ExecutorSettings, Task, TaskCache, package_version, run_tasks
 from .variants import Variant
 
 STUDY_PREFIX = "study:"

@@ -1,7 +1,7 @@
 """The task runner of ``vio-depth eval``: one variant on one sequence -> a row of ``results.csv``.
 
 :func:`run_variant_task` is the module-level runner handed to
-:func:`~vio_depth.evaluation.run_tasks` (workers import it). Each variant of
+:func:`~vio_depth.experiments.tasks.run_tasks` (workers import it). Each variant of
 :mod:`.variants` scores the same evaluated frames (:class:`~.context.TaskContext`):
 
 * ``oracle`` and ``fixed`` read only the evaluated frames;
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from vio_core.settings import override
 
 from ..baselines import iter_paper_reference, paper_reference_preset
-from ..evaluation import Task, compute_metrics, oracle_fit, point_depth_errors
+from ..evaluation import compute_metrics, oracle_fit, point_depth_errors
 from ..frame import Frame
 from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings, create_pose_source
 from ..rescale import metric_depth, sample_bilinear
@@ -31,6 +31,7 @@ from ..run import backfill_leading_frames
 from .context import TaskContext, open_task
 from .fits import PooledSums, least_squares_fit
 from .scores import FrameScore, aggregate, score_metrics
+from .tasks import Task
 from .variants import Variant, VariantKind, parse_variant
 
 
@@ -238,7 +239,7 @@ def evaluate_variant(ctx: TaskContext, variant: Variant) -> dict:
 
 
 def run_variant_task(task: Task) -> dict:
-    """Runner of :func:`~vio_depth.evaluation.run_tasks`: ``task.variant`` on ``task.sequence``."""
+    """Runner of :func:`~vio_depth.experiments.tasks.run_tasks`: ``task.variant`` on ``task.sequence``."""
     ctx = open_task(task.sequence, dict(task.settings))
     variant = parse_variant(task.variant)
     out = evaluate_variant(ctx, variant)

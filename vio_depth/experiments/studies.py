@@ -36,7 +36,6 @@ from ..evaluation import (
     PerturbedSequence,
     PoseNoise,
     Study,
-    Task,
     add_outliers,
     compute_metrics,
     depth_noise,
@@ -47,6 +46,7 @@ from ..rescale import sample_bilinear
 from .context import FrameRange, TaskContext, open_task
 from .fits import FIT_METHODS, fit_and_depth
 from .runner import TimedSource, pipeline_settings, run_stream
+from .tasks import Task
 from .variants import Variant, VariantKind
 
 #: beams of the reference points of the depth-noise and pixel-shift studies
@@ -173,7 +173,7 @@ def run_study(ctx: TaskContext, name: str) -> dict:
 
 
 def run_study_task(task: Task) -> dict:
-    """Runner of :func:`~vio_depth.evaluation.run_tasks` for ``study:<name>`` tasks."""
+    """Runner of :func:`~vio_depth.experiments.tasks.run_tasks` for ``study:<name>`` tasks."""
     ctx = open_task(task.sequence, dict(task.settings))
     name = task.variant.partition(":")[2]
     out = run_study(ctx, name)

@@ -7,6 +7,7 @@ module             job
 ``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`, :class:`PreparedFrame`
 ``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
 ``landmark_points`` :class:`LandmarkPointsStage`: multi-view landmarks over a keyframe window
+``point_source``   :class:`PointSourceSpec` (``--points``: sfm, landmarks, lidar:N, random:N)
 ``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML),
                    :data:`POSE_PRESETS`
 ``build``          :func:`build_stages`: matcher, pose source, disparity source, points stage from
@@ -28,6 +29,7 @@ from .build import (
 )
 from .landmark_points import LandmarkPointsStage
 from .pipeline import Pipeline
+from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, parse_points_spec
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import POSE_PRESETS, PRESET_FAMILIES, PipelineSettings, PoseSettings
@@ -36,6 +38,7 @@ from .stream import FrameStream
 
 __all__ = [
     "PIPELINE_STAGES",
+    "POINT_SPEC_FORMS",
     "POSE_PRESETS",
     "PRESET_FAMILIES",
     "FrameResult",
@@ -47,6 +50,8 @@ __all__ = [
     "PairStatus",
     "Pipeline",
     "PipelineSettings",
+    "PointSourceKind",
+    "PointSourceSpec",
     "PointsOutcome",
     "PoseSettings",
     "PoseStage",
@@ -60,4 +65,5 @@ __all__ = [
     "create_pose_source",
     "decide_frame_status",
     "most_certain_per_keypoint",
+    "parse_points_spec",
 ]

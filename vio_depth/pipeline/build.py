@@ -18,7 +18,7 @@ from matchers import Matcher, create_matcher
 from vio_core.errors import InputError, SettingsError
 
 from ..disparity import DisparitySource, create_disparity_source
-from ..evaluation import PointSourceKind
+from .point_source import PointSourceKind
 from ..poses import (
     GroundTruthPoses,
     GroundTruthPoseSettings,

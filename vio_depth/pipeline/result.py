@@ -9,11 +9,11 @@ import numpy as np
 from matchers import Features
 from triangulation import PoseConsistency
 
-from ..evaluation import PointSourceSpec
 from ..frame import Frame
 from ..keyframes import Motion
 from ..poses import FramePose
 from ..rescale import AffineFit, RescaleResult
+from .point_source import PointSourceSpec
 from .status import FrameStatus, PairStatus
 
 

@@ -26,11 +26,11 @@ from vio_core.errors import SettingsError
 from vio_core.settings import Presets, override, to_plain
 
 from ..disparity import DisparitySettings
-from ..evaluation import PointSourceSpec, parse_points_spec
 from ..keyframes import PAIRING_PRESETS, PairingSettings
 from ..landmarks import LandmarkSettings
 from ..poses import GroundTruthPoseSettings, ImuPoseSettings
 from ..rescale import RESCALER_PRESETS, RescalerSettings
+from .point_source import PointSourceSpec, parse_points_spec
 from ..vio import VioSettings
 
 #: the settings of a pose source: one type per source (:func:`vio_depth.pipeline.build_pose_stage`)

@@ -4,7 +4,12 @@
 module             job
 =================  ============================================================================
 ``config``         :class:`RunSettings`, TOML config files (``--config``, ``config --dump``)
-``runner``         :func:`run_sequence`: the frame loop, the offline backfill
+``runner``         :func:`run_sequence`: a run from its header to its committed folder
+``frame_loop``     the forward pass: every frame in order through the pipeline
+``frame_writer``   :class:`FrameWriter`: each frame's files, exports, evaluation, record, journal line
+``output_poses``   :class:`OutputPoses`: the run's own pose of each frame, the only one its outputs see
+``backfill``       :func:`backfill_leading_frames`: the offline backward pass
+``finish``         :func:`finish_run`: the summary and the outputs that need every frame
 ``overlap``        :class:`Prefetcher`, :class:`OrderedWriter`: the worker threads of a run
 ``timing``         :func:`timing_summary`: per-stage timings in ``metrics.json``
 ``outputs``        :class:`RunOutputs`: depth PNGs, ``frames.jsonl``, ``metrics.json``
@@ -26,7 +31,10 @@ from .overlap import OrderedWriter, Prefetcher
 from .pose_calibration import PoseCalibratedSequence, calibrate_run_poses
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
-from .runner import backfill_leading_frames, run_header, run_sequence
+from .backfill import backfill_leading_frames
+from .frame_writer import FrameWriter
+from .output_poses import OutputPoses
+from .runner import run_header, run_sequence
 from .sinks import FrameSink, SinkFactory
 from .summary import RunSummary, format_table, summary_of_folder
 from .timing import timing_summary
@@ -59,6 +67,8 @@ __all__ = [
     "RunVerdict",
     "FrameRecord",
     "FrameSink",
+    "FrameWriter",
+    "OutputPoses",
     "RunHeader",
     "RunOutputs",
     "RunSettings",

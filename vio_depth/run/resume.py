@@ -103,6 +103,18 @@ class ResumePlan:
         return len(self.records)
 
 
+def check_replayed(folder: OutputFolder, plan: ResumePlan, i: int, stem: str, record: dict) -> None:
+    """Check frame ``i``'s (``stem``) record from the replay against the journaled one (step 3).
+
+    Raises:
+        ResumeError: they differ (names the first differing field).
+    """
+    diff = record_difference(plan.records[i], record)
+    if diff:
+        raise ResumeError(f"{folder.out}: cannot resume, replaying frame {i} ({stem}) gave another "
+                          f"result than the interrupted run ({diff}); give --overwrite to start over")
+
+
 def plan_run(folder: OutputFolder, header: dict, stems: list[str]) -> ResumePlan:
     """Claim the staging folder for a run with ``header`` over frames named ``stems``.
 

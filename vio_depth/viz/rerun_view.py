@@ -224,7 +224,9 @@ class RerunView:
 
 def frame_pose(frame, result: FrameResult):
     """The camera-to-world pose the run has for ``frame`` now: the landmark window's, the
-    odometry's (``--poses vio``), else the sequence's; None when none is known."""
+    odometry's (``--poses vio``), else ``frame.T_w_c`` -- in a run the run's own pose of the
+    frame (:mod:`vio_depth.run.output_poses`: the sequence's only under ``--poses gt``);
+    None when none is known."""
     if result.points.T_w_c is not None:
         return result.points.T_w_c
     if result.frame_pose is not None and result.frame_pose.ok and result.frame_pose.T_w_c is not None:

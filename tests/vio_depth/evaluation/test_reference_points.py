@@ -1,19 +1,12 @@
-"""Tests of vio_depth/reference_points.py: simulated LiDAR rows, random samples, --points specs."""
+"""Tests of vio_depth/evaluation/reference_points.py: simulated LiDAR rows, random samples."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from vio_core.errors import InputError, SettingsError, UnknownNameError
-from vio_depth.evaluation.reference_points import (
-    PointSourceKind,
-    PointSourceSpec,
-    beam_rows,
-    lidar_beams,
-    parse_points_spec,
-    random_samples,
-)
+from vio_core.errors import InputError
+from vio_depth.evaluation.reference_points import beam_rows, lidar_beams, random_samples
 
 
 def _gt(h=100, w=50, first=10, last=89, seed=0):
@@ -69,29 +62,3 @@ def test_random_samples():
     assert uv.tolist() == [[2.0, 1.0], [0.0, 3.0]] and depth.tolist() == [2.0, 2.0]
     with pytest.raises(InputError):
         random_samples(gt, 0)
-
-
-def test_parse_points_spec():
-    assert parse_points_spec("sfm") == PointSourceSpec(PointSourceKind.SFM)
-    assert parse_points_spec("LiDAR:16") == PointSourceSpec(PointSourceKind.LIDAR, 16)
-    spec = parse_points_spec(" random:500 ")
-    assert spec.kind == PointSourceKind.RANDOM and spec.count == 500 and str(spec) == "random:500"
-    assert spec.uses_ground_truth and not parse_points_spec("sfm").uses_ground_truth
-    with pytest.raises(UnknownNameError) as info:
-        parse_points_spec("radar:4")
-    assert "lidar:<beams>" in str(info.value) and "random:<count>" in str(info.value)
-    assert "radar:4" in str(info.value)
-    for bad in ("lidar", "lidar:", "lidar:0", "lidar:-3", "random:1.5", "random:many", "sfm:3"):
-        with pytest.raises(SettingsError) as info:
-            parse_points_spec(bad)
-        assert "valid forms" in str(info.value)
-
-
-def test_spec_sample_dispatches():
-    gt = _gt()
-    uv, depth = parse_points_spec("lidar:1").sample(gt)
-    assert set(uv[:, 1].astype(int)) == {50}
-    uv, _ = parse_points_spec("random:20", seed=1).sample(gt)
-    assert len(uv) == 20
-    with pytest.raises(InputError):
-        parse_points_spec("sfm").sample(gt)

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from vio_depth.evaluation import ExecutorSettings, Task
+from vio_depth.experiments import ExecutorSettings, Task
 from vio_depth.experiments import EvalRequest, compare_evaluations, parse_sequence_arg, parse_variants, run_evaluation
 from vio_depth.experiments.command import interleave
 from vio_depth.experiments.results import read_csv

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from vio_depth.disparity import DisparityKind
-from vio_depth.evaluation import EvalMask, Task
+from vio_depth.evaluation import EvalMask
+from vio_depth.experiments import Task
 from vio_depth.experiments import (
     FrameRange,
     TaskContext,

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from vio_core.camera import Camera
-from vio_depth.evaluation import PointSourceSpec
 from vio_depth.export import (
     ExportSettings,
     PlySettings,
@@ -17,7 +16,7 @@ from vio_depth.export import (
     read_png_rgb,
 )
 from vio_depth.frame import Frame
-from vio_depth.pipeline import FrameResult, FrameStatus, PointsOutcome
+from vio_depth.pipeline import FrameResult, FrameStatus, PointSourceSpec, PointsOutcome
 
 plyfile = pytest.importorskip("plyfile")
 CAM = Camera(32, 24, 30.0, 30.0, 15.5, 11.5)

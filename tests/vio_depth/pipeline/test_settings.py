@@ -4,7 +4,7 @@ import pytest
 
 from matchers import LearnedMatcherSettings, SiftSettings
 from vio_core import SettingsError, UnknownNameError
-from vio_depth.evaluation import PointSourceKind, PointSourceSpec
+from vio_depth.pipeline import PointSourceKind, PointSourceSpec
 from vio_depth.pipeline import PRESET_FAMILIES, PipelineSettings
 from vio_depth.poses import ImuPoseSettings
 

@@ -1,4 +1,4 @@
-"""Tests of vio_depth/evaluation/tasks.py: executors agree, the cache resumes, errors name the task."""
+"""Tests of vio_depth/experiments/tasks.py: executors agree, the cache resumes, errors name the task."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from vio_core.errors import MissingDependencyError, SettingsError, UnknownNameError
-from vio_depth.evaluation.tasks import ExecutorSettings, Task, TaskError, run_tasks, runner_name
+from vio_depth.experiments.tasks import ExecutorSettings, Task, TaskError, run_tasks, runner_name
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -122,7 +122,7 @@ def test_pool_errors_are_one_line_naming_the_task(runners, tmp_path):
 def test_ray_is_never_imported_unless_selected(tmp_path):
     code = (
         "import sys; sys.path.insert(0, %r)\n"
-        "from vio_depth.evaluation.tasks import run_tasks, Task, ExecutorSettings\n"
+        "from vio_depth.experiments.tasks import run_tasks, Task, ExecutorSettings\n"
         "import eval_task_runners as r\n"
         "run_tasks([Task(%r, 'a', {'frames': [0]})], r.frame_stats, cache_dir=%r, "
         "executor=ExecutorSettings('local', workers=1), progress=False)\n"

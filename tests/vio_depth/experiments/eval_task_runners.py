@@ -1,4 +1,4 @@
-"""Runners for tests/vio_depth/evaluation/test_tasks.py.
+"""Runners for tests/vio_depth/experiments/test_tasks.py.
 
 Kept in a plain module (not a test file) so that spawned pool workers and Ray workers can
 import them: the tests put this folder on sys.path (pool) or PYTHONPATH (Ray).
