@@ -30,6 +30,7 @@ from .points import TwoViewPoints
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
+from .vio_points import VioPoints
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +84,8 @@ class Pipeline:
             self.points = LandmarkPointsStage(
                 matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
                 self.pose_source.uncertainty, settings.consistency)
+        elif settings.points.kind == PointSourceKind.VIO:
+            self.points = VioPoints(self.pose_source, matcher)
 
     @property
     def matcher(self) -> Matcher | None:

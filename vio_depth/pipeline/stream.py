@@ -210,3 +210,7 @@ class _LazyVioPoses:
     def world_pose(self, frame: Frame):
         source = self._stream._imu_source
         return None if source is None else source.world_pose(frame)
+
+    def frame_landmarks(self, frame: Frame):
+        source = self._stream._imu_source
+        return None if source is None else source.frame_landmarks(frame)

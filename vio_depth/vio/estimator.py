@@ -54,6 +54,7 @@ from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitResult
+from .landmark_feed import LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher, rotation_free_flow
 
 log = logging.getLogger(__name__)
@@ -134,6 +135,8 @@ class VioEstimator:
         # (frame, t, keyframe before, keyframe after), and those still waiting for the keyframe after
         self._bridged: list[tuple[int, float, int, int]] = []
         self._unbridged: list[tuple[int, float, int]] = []
+        #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
+        self.landmark_log = LandmarkLog(settings.history_frames)
 
     @property
     def imu(self) -> ImuData:
@@ -147,6 +150,21 @@ class VioEstimator:
     @property
     def tracking(self) -> bool:
         return self.landmarks is not None
+
+    def frame_landmarks(self, frame_id: int) -> OdometryLandmarks | None:
+        """The metric landmarks the odometry saw in frame ``frame_id``, or None.
+
+        Every frame the landmark window tracked (and the keyframes of an initialisation)
+        keeps them for ``history_frames`` frames: ``points.uv`` (N, 2) raw pixels,
+        ``points.depth`` (N,) metres, ``points.sigma_depth`` (N,) metres from the landmarks'
+        marginal covariances and the frame's pose covariance, and the window's relative
+        scale 1-sigma at that moment (:class:`~vio_depth.vio.landmark_feed.OdometryLandmarks`).
+        Frames at rest (``still``), initialising or lost have none.
+        """
+        return self.landmark_log.get(frame_id)
+
+    def _scale_sigma(self) -> float:
+        return relative_scale_sigma(*self.history.window_span_sigma())
 
     # ------------------------------------------------------------------ helpers
     def _newest_state(self) -> KeyframeState:
@@ -234,6 +252,9 @@ class VioEstimator:
                 self._bridged.append((f, t, before[-1], after[0]))
         self._sync_history()
         self._last_visual_t = res.keyframes[-1].t
+        self.landmark_log.record_window_keyframes(
+            self.landmarks, [(k.frame_id, k.camera, np.asarray(k.features.keypoints, np.float64)) for k in res.keyframes],
+            self._scale_sigma(), f"{res.kind} initialisation keyframe")
         return ""
 
     def _bridge(self, t: float, a: int, b: int):
@@ -421,6 +442,7 @@ class VioEstimator:
         elif t - self._last_visual_t > s.max_imu_only_s:
             return self._lose(frame_id, f"no visual support for {t - self._last_visual_t:.1f} s "
                                         f"(> {s.max_imu_only_s} s)")
+        self.landmark_log.record(frame_id, fl, len(w.keyframe_ids), self._scale_sigma())
         st = self._newest_state()
         status = VioStatus.TRACKING if visual else VioStatus.IMU_ONLY
         why = "" if visual else f"pose from the IMU alone ({n_lm} landmarks < {s.min_tracked_landmarks})"
