@@ -12,7 +12,7 @@ import time
 from dataclasses import replace
 
 from matchers import Features, Matcher, create_matcher
-from vio_core.errors import CorruptImageError, InputError, SettingsError
+from vio_core.errors import CorruptImageError, InputError
 
 from ..disparity import (
     DisparitySource,
@@ -29,6 +29,7 @@ from .landmark_points import LandmarkPointsStage
 from .points import TwoViewPoints
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
+from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, decide_frame_status
 from .vio_points import VioPoints
 
@@ -76,11 +77,10 @@ class Pipeline:
         if sfm:
             self.points = TwoViewPoints(matcher, self.pose_source, settings.pairing, settings.triangulation,
                                         settings.min_matches, settings.consistency)
+        elif landmarks and not isinstance(self.pose_source, GroundTruthPoses):
+            # relative poses with their covariance (imu, vio) become the window's motion factors
+            self.points = SourceLandmarkPoints(matcher, self.pose_source, settings.landmarks)
         elif landmarks:
-            if not isinstance(self.pose_source, GroundTruthPoses):
-                raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
-                                    f"the {self.pose_source.name!r} pose source gives no absolute poses with "
-                                    "uncertainty to use as priors")
             self.points = LandmarkPointsStage(
                 matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
                 self.pose_source.uncertainty, settings.consistency)

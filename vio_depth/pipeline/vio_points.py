@@ -39,9 +39,11 @@ import numpy as np
 
 from matchers import Features, Matcher
 from triangulation.multiview import pose_jacobian
+from vio_core.camera import Camera
 from vio_core.errors import SettingsError
 
 from ..frame import Frame
+from ..landmarks import LandmarkPoints
 from ..poses import FramePose, PoseSource
 from ..rescale import shared_depth_errors
 from ..vio.landmark_feed import OdometryLandmarks
@@ -105,20 +107,28 @@ class VioPoints:
             return PointsOutcome(FrameStatus.TOO_FEW_POINTS, "the odometry's window had no metric scale yet",
                                  landmarks=info, T_w_c=pts.T_w_c)
         return PointsOutcome(FrameStatus.OK, pts.reason, uv=pts.uv, depth=pts.depth, sigma=pts.sigma_depth,
-                             landmarks=info, T_w_c=pts.T_w_c, depth_shared=shared_columns(frame, seen))
+                             landmarks=info, T_w_c=pts.T_w_c, depth_shared=shared_columns(frame.camera, pts, seen.scale_sigma))
 
 
-def shared_columns(frame: Frame, seen: OdometryLandmarks) -> np.ndarray:
+def shared_columns(camera: Camera, points: LandmarkPoints, scale_sigma: float) -> np.ndarray:
     """(N, 7) metres: the depth errors all of a frame's landmark points share (module
-    docstring): six columns for the frame's pose relative to the window's newest keyframe,
-    one for the window's metric scale."""
-    pts = seen.points
+    docstring): six columns for the frame's pose relative to the window's newest keyframe
+    (``points.covariance``, (6, 6) rad / m; none when it is None), one for the window's
+    metric scale (``scale_sigma``: relative 1-sigma).
+
+    Args:
+        camera: the frame's camera.
+        points: the frame's :class:`~vio_depth.landmarks.LandmarkPoints` (``uv`` (N, 2) raw
+            pixels, ``depth`` (N,) metres).
+        scale_sigma: relative 1-sigma of the window's metric scale (finite, >= 0).
+    """
+    pts = points
     z = np.asarray(pts.depth, np.float64)
-    ideal = frame.camera.undistort_points(pts.uv)
-    rays = np.column_stack([ideal, np.ones(len(z))]) @ np.linalg.inv(frame.camera.K).T
+    ideal = camera.undistort_points(pts.uv)
+    rays = np.column_stack([ideal, np.ones(len(z))]) @ np.linalg.inv(camera.K).T
     p_c = rays / rays[:, 2:3] * z[:, None]  # (N, 3) the points in the camera, metres
     out = np.zeros((len(z), 7))
     if pts.covariance is not None:
         out[:, :6] = shared_depth_errors(pose_jacobian(p_c)[:, 2, :], pts.covariance)
-    out[:, 6] = z * seen.scale_sigma
+    out[:, 6] = z * scale_sigma
     return out
