@@ -7,6 +7,8 @@ module             job
 ``result``         :class:`FrameResult`, :class:`PointsOutcome`, :class:`PairAttempt`, :class:`PreparedFrame`
 ``points``         :class:`TwoViewPoints`: pairing with keyframes, triangulation, merging
 ``landmark_points`` :class:`LandmarkPointsStage`: multi-view landmarks over a keyframe window
+``source_landmarks`` :class:`SourceLandmarkPoints`: the same with a relative pose source's factors (imu, vio)
+``vio_points``     :class:`VioPoints`: the odometry's own landmarks (``--points vio``)
 ``settings``       :class:`PipelineSettings` (one settings object per stage, presets, TOML)
 ``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
 ``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
@@ -18,8 +20,10 @@ from .pipeline import Pipeline
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import PRESET_FAMILIES, PipelineSettings
+from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
+from .vio_points import VioPoints
 
 __all__ = [
     "PIPELINE_STAGES",
@@ -35,7 +39,9 @@ __all__ = [
     "PipelineSettings",
     "PointsOutcome",
     "PreparedFrame",
+    "SourceLandmarkPoints",
     "TwoViewPoints",
+    "VioPoints",
     "decide_frame_status",
     "most_certain_per_keypoint",
 ]
