@@ -54,7 +54,7 @@ from ..poses import VioSettings, adjoint, detect_still_interval, preintegrate
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitResult
-from .landmark_feed import LandmarkLog, OdometryLandmarks, relative_scale_sigma
+from .landmark_feed import KEPT_FRAMES, LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher, rotation_free_flow
 
 log = logging.getLogger(__name__)
@@ -136,7 +136,7 @@ class VioEstimator:
         self._bridged: list[tuple[int, float, int, int]] = []
         self._unbridged: list[tuple[int, float, int]] = []
         #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
-        self.landmark_log = LandmarkLog(settings.history_frames)
+        self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
 
     @property
     def imu(self) -> ImuData:
@@ -155,7 +155,7 @@ class VioEstimator:
         """The metric landmarks the odometry saw in frame ``frame_id``, or None.
 
         Every frame the landmark window tracked (and the keyframes of an initialisation)
-        keeps them for ``history_frames`` frames: ``points.uv`` (N, 2) raw pixels,
+        keeps them for the last ``KEPT_FRAMES`` (256) frames: ``points.uv`` (N, 2) raw pixels,
         ``points.depth`` (N,) metres, ``points.sigma_depth`` (N,) metres from the landmarks'
         marginal covariances and the frame's pose covariance, and the window's relative
         scale 1-sigma at that moment (:class:`~vio_depth.vio.landmark_feed.OdometryLandmarks`).

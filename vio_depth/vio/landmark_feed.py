@@ -60,6 +60,12 @@ def relative_scale_sigma(sigma_m: float, distance_m: float) -> float:
     return 0.0 if sigma_m == 0 else float("inf")
 
 
+#: frames whose landmarks the odometry keeps: the current one, and enough for the offline
+#: backward pass over a start and its convergence (a few MB: about 50 kB per frame of 1000
+#: landmarks); memory stays flat however long the run
+KEPT_FRAMES = 256
+
+
 class LandmarkLog:
     """The :class:`OdometryLandmarks` of the last ``capacity`` frames the odometry tracked.
 
