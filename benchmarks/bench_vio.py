@@ -18,7 +18,9 @@ converging -- get their pose in the backward pass), and the odometry's own time 
 Points under ``--poses vio`` (issue 22), same samples, same run: ``--points vio`` (the
 odometry's own landmarks with their marginal covariances, no second matching) against
 ``--points sfm`` (two-view pairs matched and triangulated again from the odometry's relative
-poses; the ``vio`` row of the first table). Columns: frames written / processed, AbsRel and
+poses; the ``vio`` row of the first table) and ``--points landmarks`` (a landmark window of
+the points stage's own, the odometry's relative poses as between factors with their
+covariance). Columns: frames written / processed, AbsRel and
 oracle AbsRel over the frames written, wrong written frames (AbsRel > 2 x oracle + 0.02),
 points per frame, the points stage's time per frame and the pipeline's time per frame
 (``seconds``: image, features, odometry, points, fit, depth; the backward pass excluded).
@@ -81,9 +83,10 @@ def sample_rows(names) -> tuple[list[str], list[str]]:
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             res = {p: run_sample(name, p, Path(tmp) / f"{name}_{p}") for p in ("gt", "vio")}
-            vio_points = run_sample(name, "vio", Path(tmp) / f"{name}_vio_vio", points="vio")
             point_rows.append(points_row(name, "sfm", *res["vio"]))
-            point_rows.append(points_row(name, "vio", *vio_points))
+            for points in ("vio", "landmarks"):
+                point_rows.append(points_row(name, points, *run_sample(name, "vio", Path(tmp) / f"{name}_vio_{points}",
+                                                                       points=points)))
             gt_abs = res["gt"][0].metrics["sfm"]["abs_rel"]
             for p, (summary, records) in res.items():
                 m = summary.metrics["sfm"]

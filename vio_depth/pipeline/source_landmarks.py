@@ -43,9 +43,11 @@ from .vio_points import shared_columns
 #: fixes the gauge. The window reads its poses' uncertainty relative to the newest keyframe
 #: (a conditional covariance, which cannot exceed the marginal): a tight anchor would make the
 #: oldest keyframe look certain relative to the newest, whatever the source's covariance says.
-_ANCHOR_SIGMAS = np.array([0.1] * 3 + [1.0] * 3)
-#: 1-sigma (rad, m) of a relative pose whose source states no covariance (exact)
-_EXACT_SIGMA = 1e-6
+_ANCHOR_SIGMAS = np.array([0.01] * 3 + [0.1] * 3)
+#: 1-sigma (rad, m) of a relative pose whose source states no covariance (exact), and the
+#: floor of a stated covariance's eigenvalues (a nearly singular one makes the window's
+#: linear systems indeterminate; 10 micrometres / radians is far below any source's error)
+_EXACT_SIGMA = 1e-5
 
 
 class RelativePoseFactors:
@@ -94,11 +96,14 @@ class RelativePoseFactors:
 
 
 def _usable_covariance(covariance) -> np.ndarray:
-    """(6, 6) symmetric positive definite: the stated covariance, or a tiny one when the source states none."""
+    """(6, 6) symmetric positive definite: the stated covariance with its eigenvalues floored
+    at ``_EXACT_SIGMA**2``, or that floor when the source states none."""
     if covariance is None:
         return (_EXACT_SIGMA ** 2) * np.eye(6)
     C = check_array("covariance", covariance, (6, 6), finite=True)
-    return 0.5 * (C + C.T) + 1e-12 * np.eye(6)
+    lam, V = np.linalg.eigh(0.5 * (C + C.T))
+    C = (V * np.maximum(lam, _EXACT_SIGMA ** 2)) @ V.T
+    return 0.5 * (C + C.T)
 
 
 class SourceLandmarkPoints:
