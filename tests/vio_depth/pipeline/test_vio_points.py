@@ -138,3 +138,19 @@ def test_landmarks_with_imu_poses_use_their_covariance():
         # the window's scale comes from the IMU's relative translations: a shared error > 0
         assert np.all(r.points.depth_shared[:, 6] > 0)
     assert sum(r.has_depth for r in results) >= 5
+
+
+def test_frame_stream_takes_vio_points_before_any_imu_sample():
+    """The stream's odometry is created with the first IMU samples: until then its frames get
+    no pose (not an exception), and the stage is the vio one from the start."""
+    from vio_depth import FrameStream
+
+    seq = open_sequence(ROOM)
+    stream = FrameStream(seq.camera, PipelineSettings.from_presets(poses="vio", points="vio", pairing="indoor"),
+                         imu_calibration=seq.imu)
+    assert isinstance(stream.pipeline.points, VioPoints)
+    frame = seq[0]
+    res = stream.push(frame.image(), np.ones((seq.camera.height, seq.camera.width), np.float32),
+                      timestamp=frame.timestamp)
+    assert res.points.status == FrameStatus.NO_POSE and "no IMU samples" in res.points.reason
+    assert res.depth is None
