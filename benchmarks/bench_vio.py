@@ -15,6 +15,16 @@ posed when they were processed (the others -- its initialisation, the scale stil
 converging -- get their pose in the backward pass), and the odometry's own time per frame
 (``poses`` stage: tracking, window updates; feature extraction excluded) as frames per second.
 
+Points under ``--poses vio`` (issue 22), same samples, same run: ``--points vio`` (the
+odometry's own landmarks with their marginal covariances, no second matching) against
+``--points sfm`` (two-view pairs matched and triangulated again from the odometry's relative
+poses; the ``vio`` row of the first table) and ``--points landmarks`` (a landmark window of
+the points stage's own, the odometry's relative poses as between factors with their
+covariance). Columns: frames written / processed, AbsRel and
+oracle AbsRel over the frames written, wrong written frames (AbsRel > 2 x oracle + 0.02),
+points per frame, the points stage's time per frame and the pipeline's time per frame
+(``seconds``: image, features, odometry, points, fit, depth; the backward pass excluded).
+
 With ``../shared/data/euroc_v101_static`` present (skipped otherwise): the **real** static
 start -- the odometry on the 95 still frames of EuRoC V1_01 with the real 200 Hz IMU: when it
 starts, its roll/pitch against the ground truth, and how far the still camera's estimate
@@ -40,24 +50,43 @@ EUROC = ROOT / ".." / "shared" / "data" / "euroc_v101_static"
 SAMPLES = {"street": dict(pairing=None, max_depth=80.0), "room": dict(pairing="indoor", max_depth=10.0)}
 
 
-def run_sample(name: str, poses: str, out: Path):
+def run_sample(name: str, poses: str, out: Path, points: str = "sfm"):
     """``(RunSummary, frame records)`` of one full run."""
     from vio_depth import Pipeline, PipelineSettings, open_sequence
     from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
 
     spec = SAMPLES[name]
     seq = open_sequence(ROOT / "sample_sequences" / name)
-    settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"])
+    settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"], points=points)
     summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=spec["max_depth"]),
                            progress=False)
     return summary, read_frames_jsonl(out / "frames.jsonl")[1]
 
 
-def sample_rows(names) -> list[str]:
-    rows = []
+def points_row(name: str, points: str, summary, records) -> str:
+    """One row of the points comparison under ``--poses vio``."""
+    m, oracle = summary.metrics[points], summary.metrics["oracle"]
+    written = [r for r in records if r.get("alpha") is not None]
+    wrong = sum(1 for r in written if r.get("abs_rel") is not None and r.get("oracle_abs_rel") is not None
+                and r["abs_rel"] > 2 * r["oracle_abs_rel"] + 0.02)
+    forward = [r for r in records if not r.get("backfilled")]
+    t_points = np.mean([r["timings"].get("points", 0.0) for r in forward])
+    t_frame = np.mean([r["seconds"] for r in forward])
+    n_points = np.mean([r["triangulated_points"] for r in written]) if written else 0.0
+    return (f"| {name} | {points} | {summary.frames_with_depth}/{summary.frames_processed} | {m['abs_rel']:.4f} "
+            f"| {oracle['abs_rel']:.4f} | {wrong} | {n_points:.0f} | {1000 * t_points:.1f} | {1000 * t_frame:.0f} |")
+
+
+def sample_rows(names) -> tuple[list[str], list[str]]:
+    """Rows of the odometry table and of the points comparison."""
+    rows, point_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             res = {p: run_sample(name, p, Path(tmp) / f"{name}_{p}") for p in ("gt", "vio")}
+            point_rows.append(points_row(name, "sfm", *res["vio"]))
+            for points in ("vio", "landmarks"):
+                point_rows.append(points_row(name, points, *run_sample(name, "vio", Path(tmp) / f"{name}_vio_{points}",
+                                                                       points=points)))
             gt_abs = res["gt"][0].metrics["sfm"]["abs_rel"]
             for p, (summary, records) in res.items():
                 m = summary.metrics["sfm"]
@@ -73,7 +102,7 @@ def sample_rows(names) -> list[str]:
                     f"| {m['abs_rel'] / gt_abs:.3f} | {ate['ate_m']['rmse']:.4f} | {ate['ate_fraction_of_path']:.2%} "
                     f"| {'-' if rpe is None else format(rpe['translation_m']['rmse'], '.4f')} "
                     f"| {ate['sim3_scale'] - 1:+.2%} | {posed_live if p == 'vio' else '-'} | {fps if p == 'vio' else '-'} |")
-    return rows
+    return rows, point_rows
 
 
 def euroc_static_start() -> list[str]:
@@ -118,7 +147,14 @@ def main(argv=None) -> int:
         print("\n| sample (SIMULATED) | poses | frames with depth | AbsRel | / gt | ATE m | ATE / path | RPE 1 m "
               "| scale error | posed live | odometry fps |")
         print("|---" * 11 + "|")
-        for row in sample_rows(args.samples):
+        rows, point_rows = sample_rows(args.samples)
+        for row in rows:
+            print(row, flush=True)
+        print("\nPoints under --poses vio: the odometry's landmarks (vio) against two-view pairs (sfm)\n")
+        print("| sample (SIMULATED) | --points | frames written | AbsRel | oracle AbsRel | wrong written "
+              "| points/frame | points stage ms/frame | pipeline ms/frame |")
+        print("|---" * 9 + "|")
+        for row in point_rows:
             print(row, flush=True)
     if not args.no_euroc:
         if not EUROC.is_dir():

@@ -87,7 +87,8 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")
     g.add_argument("--points", default=None,
-                   help="metric point source: sfm (default), or lidar:N / random:N sampled from ground truth")
+                   help="metric point source: sfm (default), landmarks (a gtsam landmark window), vio (the "
+                        "odometry's own landmarks, with --poses vio), or lidar:N / random:N sampled from ground truth")
     g.add_argument("--seed", type=int, default=None, help="seed of RANSAC, random reference points and "
                                                           "the SIMULATED disparity (default 0)")
     d = p.add_argument_group("disparity")

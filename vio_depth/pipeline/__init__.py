@@ -13,6 +13,8 @@ module             job
 ``build``          :func:`build_stages`: matcher, pose source, disparity source, points stage from
                    the settings, by explicit calls (:func:`build_pose_stage`, :func:`create_pose_source`)
 ``feed``           a stream's frames and IMU samples, its lazily built ``imu`` / ``vio`` source
+``source_landmarks`` :class:`SourceLandmarkPoints`: the same with a relative pose source's factors (imu, vio)
+``vio_points``     :class:`VioPoints`: the odometry's own landmarks (``--points vio``)
 ``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
 ``stream``         :class:`FrameStream` (``push(image, disparity, ...)`` from arrays)
 =================  ============================================================================
@@ -33,8 +35,10 @@ from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, pa
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import POSE_PRESETS, PRESET_FAMILIES, PipelineSettings, PoseSettings
+from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
+from .vio_points import VioPoints
 
 __all__ = [
     "PIPELINE_STAGES",
@@ -56,6 +60,7 @@ __all__ = [
     "PoseSettings",
     "PoseStage",
     "PreparedFrame",
+    "SourceLandmarkPoints",
     "Stages",
     "TwoViewPoints",
     "build_matcher",
@@ -63,6 +68,7 @@ __all__ = [
     "build_pose_stage",
     "build_stages",
     "create_pose_source",
+    "VioPoints",
     "decide_frame_status",
     "most_certain_per_keypoint",
     "parse_points_spec",

@@ -18,7 +18,6 @@ from matchers import Matcher, create_matcher
 from vio_core.errors import InputError, SettingsError
 
 from ..disparity import DisparitySource, create_disparity_source
-from .point_source import PointSourceKind
 from ..poses import (
     GroundTruthPoses,
     GroundTruthPoseSettings,
@@ -30,8 +29,11 @@ from ..poses import (
 from ..vio import VioPoseSource, VioSettings
 from .feed import LazyImuPoses, StreamInputs
 from .landmark_points import LandmarkPointsStage
+from .point_source import PointSourceKind
 from .points import TwoViewPoints
 from .settings import POSE_PRESETS, PipelineSettings, PoseSettings
+from .source_landmarks import SourceLandmarkPoints
+from .vio_points import VioPoints
 
 PointsStage = TwoViewPoints | LandmarkPointsStage
 
@@ -152,22 +154,30 @@ def build_points_stage(settings: PipelineSettings, pose_source: PoseSource, matc
                        sequence=None) -> PointsStage | None:
     """The points stage of ``settings.points`` (None for the reference sources sampled from ground truth).
 
+    ``landmarks`` takes the sequence's poses as priors under ``gt`` (their stated
+    uncertainty), and any other source's relative poses with their covariance as motion
+    factors; ``vio`` reads the odometry's own landmarks.
+
     Raises:
-        SettingsError: ``landmarks`` with a pose source that gives no absolute poses with
-            uncertainty to use as priors.
+        SettingsError: ``vio`` with any pose source but ``vio``.
     """
     match settings.points.kind:
         case PointSourceKind.SFM:
             return TwoViewPoints(matcher, pose_source, settings.pairing, settings.triangulation,
                                  settings.min_matches, settings.consistency)
-        case PointSourceKind.LANDMARKS:
-            if not isinstance(pose_source, GroundTruthPoses):
-                raise SettingsError("--points landmarks takes the sequence's poses as priors (--poses gt); "
-                                    f"the {pose_source.name!r} pose source gives no absolute poses with "
-                                    "uncertainty to use as priors")
+        case PointSourceKind.LANDMARKS if isinstance(pose_source, GroundTruthPoses):
             return LandmarkPointsStage(
                 matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
                 pose_source.uncertainty, settings.consistency)
+        case PointSourceKind.LANDMARKS:
+            # relative poses with their covariance (imu, vio) become the window's motion factors
+            return SourceLandmarkPoints(matcher, pose_source, settings.landmarks)
+        case PointSourceKind.VIO:
+            if not isinstance(settings.poses, VioSettings):
+                raise SettingsError("--points vio takes the odometry's own landmarks (--poses vio); the "
+                                    f"{pose_source.name!r} pose source has none: use --points sfm or "
+                                    "--points landmarks")
+            return VioPoints(pose_source, matcher)
         case _:
             return None
 

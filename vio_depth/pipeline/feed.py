@@ -124,3 +124,10 @@ class LazyImuPoses:
     def world_pose(self, frame: Frame) -> np.ndarray | None:
         source = self._current()
         return None if source is None else source.world_pose(frame)
+
+    def frame_landmarks(self, frame: Frame):
+        """The landmarks the odometry saw in ``frame``
+        (:meth:`~vio_depth.vio.VioPoseSource.frame_landmarks`; ``vio`` only), or None before
+        the first samples."""
+        source = self._current()
+        return None if source is None else source.frame_landmarks(frame)

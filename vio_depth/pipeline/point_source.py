@@ -17,12 +17,13 @@ from vio_core.errors import InputError, SettingsError, UnknownNameError
 
 from ..evaluation import lidar_beams, random_samples
 
-POINT_SPEC_FORMS = ("sfm", "landmarks", "lidar:<beams>", "random:<count>")
+POINT_SPEC_FORMS = ("sfm", "landmarks", "vio", "lidar:<beams>", "random:<count>")
 
 
 class PointSourceKind(str, enum.Enum):
     SFM = "sfm"  # triangulated by the structure-from-motion front end, two views at a time
     LANDMARKS = "landmarks"  # multi-view landmarks refined over a keyframe window (gtsam)
+    VIO = "vio"  # the odometry's own landmarks (--poses vio), with their marginal covariances
     LIDAR = "lidar"  # simulated LiDAR beams from ground truth
     RANDOM = "random"  # random ground-truth samples
 
@@ -51,7 +52,7 @@ class PointSourceSpec:
                 raise UnknownNameError("point source", str(self.kind), [k.value for k in PointSourceKind]) from None
             object.__setattr__(self, "kind", kind)
         forms = ", ".join(POINT_SPEC_FORMS)
-        if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS):
+        if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS, PointSourceKind.VIO):
             if self.count not in (None, 0):
                 raise SettingsError(f"point source '{kind.value}' takes no count (valid forms: {forms})")
             object.__setattr__(self, "count", None)
@@ -103,7 +104,7 @@ def parse_points_spec(spec: str, seed: int = 0) -> PointSourceSpec:
         kind = PointSourceKind(name)
     except ValueError:
         raise UnknownNameError("point source", str(spec), POINT_SPEC_FORMS) from None
-    if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS):
+    if kind in (PointSourceKind.SFM, PointSourceKind.LANDMARKS, PointSourceKind.VIO):
         if sep:
             raise SettingsError(f"point source {spec!r}: '{kind.value}' takes no count (valid forms: {forms})")
         return PointSourceSpec(kind, seed=seed)

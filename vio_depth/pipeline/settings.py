@@ -68,8 +68,9 @@ class PipelineSettings:
         rescaler: robust fit, fallbacks and temporal filter (``streaming``, ``per_frame``, ``paper``).
         points: where the metric points come from: ``sfm`` (two-view triangulation with
             keyframes), ``landmarks`` (multi-view landmarks refined over a keyframe window,
-            :mod:`vio_depth.landmarks`), or a reference source ``lidar:N`` / ``random:N``
-            sampled from ground truth.
+            :mod:`vio_depth.landmarks`), ``vio`` (the odometry's own landmarks, with
+            ``poses = "vio"``), or a reference source ``lidar:N`` / ``random:N`` sampled from
+            ground truth.
         landmarks: the landmark window (``points = "landmarks"``); its pose prior is None by
             default: the preset of the sequence's kind of poses.
         disparity: where the disparity comes from (the sequence's own, files, SIMULATED, a model).

@@ -50,6 +50,7 @@ from .bridge import FrameBridges
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitKind, InitResult
+from .landmark_feed import KEPT_FRAMES, LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher
 from .rest import RestDetector, RestTest
 from .settings import VioSettings
@@ -127,6 +128,8 @@ class VioEstimator:
         self.last_update = None
         self.last_init: InitResult | None = None
         self.bridges = FrameBridges(self.factors)
+        #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
+        self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
 
     @property
     def imu(self) -> ImuData:
@@ -140,6 +143,21 @@ class VioEstimator:
     @property
     def tracking(self) -> bool:
         return self.landmarks is not None
+
+    def frame_landmarks(self, frame_id: int) -> OdometryLandmarks | None:
+        """The metric landmarks the odometry saw in frame ``frame_id``, or None.
+
+        Every frame the landmark window tracked (and the keyframes of an initialisation)
+        keeps them for the last ``KEPT_FRAMES`` (256) frames: ``points.uv`` (N, 2) raw pixels,
+        ``points.depth`` (N,) metres, ``points.sigma_depth`` (N,) metres from the landmarks'
+        marginal covariances and the frame's pose covariance, and the window's relative
+        scale 1-sigma at that moment (:class:`~vio_depth.vio.landmark_feed.OdometryLandmarks`).
+        Frames at rest (``still``), initialising or lost have none.
+        """
+        return self.landmark_log.get(frame_id)
+
+    def _scale_sigma(self) -> float:
+        return relative_scale_sigma(*self.history.window_span_sigma())
 
     # ------------------------------------------------------------------ helpers
     def _newest_state(self) -> KeyframeState:
@@ -217,6 +235,9 @@ class VioEstimator:
         self.bridges.start([(k.frame_id, k.t) for k in res.keyframes], list(res.frames))
         self._sync_history()
         self._last_visual_t = res.keyframes[-1].t
+        self.landmark_log.record_window_keyframes(
+            self.landmarks, [(k.frame_id, k.camera, np.asarray(k.features.keypoints, np.float64)) for k in res.keyframes],
+            self._scale_sigma(), f"{res.kind} initialisation keyframe")
         return ""
 
     # ------------------------------------------------------------------ per frame
@@ -313,6 +334,7 @@ class VioEstimator:
         elif t - self._last_visual_t > s.max_imu_only_s:
             return self._lose(frame_id, f"no visual support for {t - self._last_visual_t:.1f} s "
                                         f"(> {s.max_imu_only_s} s)")
+        self.landmark_log.record(frame_id, fl, len(w.keyframe_ids), self._scale_sigma())
         st = self._newest_state()
         status = VioStatus.TRACKING if visual else VioStatus.IMU_ONLY
         why = "" if visual else f"pose from the IMU alone ({n_lm} landmarks < {s.min_tracked_landmarks})"

@@ -24,6 +24,7 @@ from vio_core.errors import InputError
 from ..frame import Frame, ImuData
 from ..poses import FramePose, RelativePose
 from .estimator import VioEstimator, VioFrame
+from .landmark_feed import OdometryLandmarks
 from .settings import VioSettings
 
 
@@ -96,6 +97,11 @@ class VioPoseSource:
         if history.session(frame.index) != self._main_session[1]:
             return None
         return history.pose(frame.index)
+
+    def frame_landmarks(self, frame: Frame) -> OdometryLandmarks | None:
+        """The odometry's metric landmarks seen in a tracked ``frame`` with their depth
+        1-sigma (:meth:`VioEstimator.frame_landmarks`), or None."""
+        return self.estimator.frame_landmarks(frame.index)
 
     def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
         """``T_kf_cur`` and its (6, 6) covariance (right perturbation in the current camera)."""

@@ -13,6 +13,7 @@ from vio_depth.pipeline import (
     Pipeline,
     PipelineSettings,
     PoseStage,
+    SourceLandmarkPoints,
     TwoViewPoints,
     build_points_stage,
     build_pose_stage,
@@ -134,8 +135,13 @@ def test_each_points_stage_is_chosen_by_the_points_settings():
     for points in ("lidar:16", "random:100"):
         assert build_points_stage(PipelineSettings.from_presets(points=points), gt, None) is None
     imu = ImuPoseSource(_imu())
-    with pytest.raises(SettingsError, match="--points landmarks takes the sequence's poses"):
-        build_points_stage(PipelineSettings.from_presets(points="landmarks"), imu, matcher)
+    # any other source's relative poses and their covariance become the window's motion factors
+    stage = build_points_stage(PipelineSettings.from_presets(poses="imu", points="landmarks"), imu, matcher)
+    assert isinstance(stage, SourceLandmarkPoints) and stage.matcher is matcher
+    # the odometry's own landmarks: only under --poses vio
+    for poses, source in (("gt", gt), ("imu", imu)):
+        with pytest.raises(SettingsError, match="--points vio takes the odometry's own landmarks"):
+            build_points_stage(PipelineSettings.from_presets(poses=poses, points="vio"), source, matcher)
     with pytest.raises(UnknownNameError, match="sfm"):
         PipelineSettings.from_presets(points="lidar_beams")
 

@@ -5,7 +5,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vio_core import SettingsError
 from vio_depth import Pipeline, PipelineSettings, open_sequence
 from vio_depth.pipeline import FrameStatus
 from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
@@ -32,12 +31,6 @@ def test_landmark_points_are_metric_and_the_window_poses_are_used(tmp_path):
     truth = {round(seq[i].timestamp, 6): seq[i].T_w_c[:3, 3] for i in range(12)}
     err = [np.linalg.norm(r[1:4] - truth[round(r[0], 6)]) for r in rows]
     assert max(err) < 0.01
-
-
-def test_landmarks_need_the_sequences_poses_as_priors():
-    seq = open_sequence(STREET)
-    with pytest.raises(SettingsError, match="--poses gt"):
-        Pipeline(PipelineSettings.from_presets(points="landmarks", poses="imu"), sequence=seq)
 
 
 def test_a_frame_without_a_pose_gets_no_pose_not_an_exception():
