@@ -380,9 +380,10 @@ def main(argv=None) -> int:
     names = [n for n in args.datasets.split(",") if n]
     unknown = [n for n in names if n not in data.DATASETS]
     modes = [m for m in args.modes.split(",") if m]
-    if unknown or not set(modes) <= {"realtime", "afap"}:
-        parser.error(f"unknown dataset(s) {unknown} (valid: {', '.join(data.DATASETS)}) or mode(s) {modes} "
-                     "(valid: realtime, afap)")
+    if unknown:
+        parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
+    if not modes or not set(modes) <= {"realtime", "afap"}:
+        parser.error(f"unknown mode(s) in {args.modes!r} (valid: realtime, afap)")
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, {os.cpu_count()} cores, Python "
           f"{platform.python_version()}, OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy "
           f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start. Times on a shared machine vary.")
