@@ -384,6 +384,8 @@ def main(argv=None) -> int:
         parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
     if not modes or not set(modes) <= {"realtime", "afap"}:
         parser.error(f"unknown mode(s) in {args.modes!r} (valid: realtime, afap)")
+    if not args.rate_scale > 0 or args.queue_size < 1:
+        parser.error("--rate-scale must be positive and --queue-size at least 1")
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, {os.cpu_count()} cores, Python "
           f"{platform.python_version()}, OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy "
           f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start. Times on a shared machine vary.")
