@@ -1,0 +1,426 @@
+"""Real time on the robot (issue 24): a recorded sequence streamed through ``FrameStream`` at its
+camera rate -- per-frame latency, sustained frames/s, dropped and late frames, per-stage time --
+against bare OpenCV SIFT and bare KLT tracking on the same frames, in the same run.
+
+**Replay.** Frame ``i`` *arrives* at ``(t_i - t_0) / rate_scale`` seconds (``t``: the recorded
+frame timestamps; ``--rate-scale 2`` plays twice as fast). One consumer -- the pipeline, as a
+robot's depth node runs it -- takes frames from a **bounded input queue of ``--queue-size``
+frames (default 1) that drops the oldest waiting frame when a new one arrives into a full
+queue**: a robot wants the newest depth, not a growing backlog. A dropped frame is never
+pushed, but its IMU samples are (every push carries all samples since the previous push, up
+to its own timestamp). The clock is *virtual*: the pipeline's time per push is measured with
+``perf_counter`` and advances the clock; while the queue is empty the clock jumps to the next
+arrival instead of sleeping (the same schedule as a real-time replay with an instantaneous
+producer, without waiting the recording's duration). Loading and decoding a frame (image and
+disparity file) is not timed: a camera driver delivers decoded images.
+
+* **latency** of a frame: its arrival to its result (the depth map, when it has one) --
+  queue wait plus processing; p50 / p90 / p99 over the processed frames (with a few dozen
+  frames, p99 is close to the maximum).
+* **late**: a processed frame whose result came after the next frame's arrival.
+* **dropped**: a frame the queue discarded.
+* **frames/s** (sustained): processed frames / (last result - first arrival). At the recorded
+  rate it cannot exceed the camera rate; ``afap`` shows the capacity.
+* mode ``afap`` (as fast as possible): frame ``i + 1`` arrives when frame ``i``'s result is
+  out: no queue wait, no drop; latency = processing time.
+
+**Per stage**: mean ms of the pipeline's own stage timings (``FrameResult.timings``: image,
+disparity, features, poses -- the odometry --, points with its matching and triangulation,
+fit, depth); ``other``: the push's measured time minus those stages (input checks, stream
+bookkeeping). The depth network is excluded: disparity comes from files or memory.
+
+**Baselines** (mode ``afap``, same frames, RGB -> grey included): **bare SIFT** --
+``cv2.SIFT_create`` with the project's ``matchers.SiftSettings`` (4000 features, contrast
+0.04, edge 10, 3 layers, sigma 1.6), ``detectAndCompute`` per frame; **bare KLT** --
+``cv2.goodFeaturesToTrack`` (300 corners, quality 0.01, 20 px apart) tracked frame to frame
+with ``cv2.calcOpticalFlowPyrLK`` (21x21 window, 3 pyramid levels), topped up with new corners
+away from the tracks when fewer than 200 survive (as VINS-Mono / OpenVINS front ends do).
+
+**Peak RSS**: ``VmHWM`` of this process, reset (``/proc/self/clear_refs``) before each row, so a
+row's figure is that row's own peak (the pipeline plus one frame; Linux; ``-`` elsewhere).
+
+Before each pipeline row an untimed stream of ``--warmup`` frames runs (lazy imports, caches).
+
+Verdict (issue 24's targets): ``--poses vio`` on 752x480 (EuRoC): ``afap`` >= 20 frames/s, no
+frame dropped at the recorded rate and p99 latency <= 100 ms there (the same figures are printed,
+as indicative, for the 512x384 ASL sample); ``--poses gt`` on 1242x375:
+``afap`` frames/s >= 0.8 x bare SIFT's (the stream's push, no output writing:
+``bench_throughput.py`` times the whole CLI run).
+
+    python benchmarks/bench_realtime.py                                  # every dataset (renders once)
+    python benchmarks/bench_realtime.py --datasets euroc,kitti_tiny --max-frames 40 --no-baselines
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # measure this checkout's code
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import realtime_data as data  # noqa: E402
+
+from matchers import SiftSettings  # noqa: E402
+from vio_depth import FrameStream, PipelineSettings  # noqa: E402
+from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
+
+DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_realtime"
+#: stage columns of the per-stage table (``matching`` and ``triangulation`` are parts of ``points``)
+STAGES = (*PIPELINE_STAGES, "matching", "triangulation")
+KLT_MAX, KLT_MIN, KLT_SPACING = 300, 200, 20
+
+
+# ----------------------------------------------------------------------------- replay and its accounting
+@dataclass
+class Replay:
+    """What a replay did. Times in seconds on the replay's clock (first arrival = 0).
+
+    Attributes:
+        arrivals: (N,) arrival time of every frame.
+        processed: indices of the processed frames, in order; ``starts`` / ``finishes``: when
+            each one's processing began and its result came out.
+        dropped: indices of the frames the queue discarded.
+        afap: frames arrived when the previous result came out (no queue).
+    """
+
+    arrivals: np.ndarray
+    processed: list[int] = field(default_factory=list)
+    starts: list[float] = field(default_factory=list)
+    finishes: list[float] = field(default_factory=list)
+    dropped: list[int] = field(default_factory=list)
+    afap: bool = False
+
+    @property
+    def latencies(self) -> np.ndarray:
+        """(P,) seconds from arrival to result of every processed frame."""
+        return np.asarray(self.finishes) - self.arrivals[self.processed]
+
+    @property
+    def late(self) -> int:
+        """Processed frames whose result came after the next frame's arrival (0 in ``afap`` mode)."""
+        if self.afap:
+            return 0
+        n = len(self.arrivals)
+        return sum(1 for i, f in zip(self.processed, self.finishes) if i + 1 < n and f > self.arrivals[i + 1])
+
+    @property
+    def fps(self) -> float:
+        """Sustained frames per second: processed frames / (last result - first arrival)."""
+        span = self.finishes[-1] - self.arrivals[0] if self.finishes else 0.0
+        return len(self.processed) / span if span > 0 else float("nan")
+
+
+def replay(timestamps: np.ndarray, process: Callable[[int], float], *, rate_scale: float | None = 1.0,
+           queue_size: int = 1) -> Replay:
+    """Stream frames through ``process`` (``process(i)`` handles frame ``i`` and returns the
+    seconds it took) with a bounded queue that drops the oldest waiting frame when full.
+
+    Args:
+        timestamps: (N,) seconds, the recorded frame times.
+        rate_scale: playback speed (1 = recorded rate), or None: as fast as possible (frame
+            ``i + 1`` arrives when frame ``i``'s result is out).
+        queue_size: frames that may wait while one is processed (>= 1).
+    """
+    if queue_size < 1:
+        raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+    n = len(timestamps)
+    if rate_scale is None:
+        out = Replay(np.zeros(n), afap=True)
+        clock = 0.0
+        for i in range(n):
+            out.arrivals[i] = clock
+            out.processed.append(i)
+            out.starts.append(clock)
+            clock += process(i)
+            out.finishes.append(clock)
+        return out
+    if not rate_scale > 0:
+        raise ValueError(f"rate_scale must be positive, got {rate_scale}")
+    out = Replay((np.asarray(timestamps, float) - timestamps[0]) / rate_scale)
+    queue: deque[int] = deque()
+    clock, nxt = 0.0, 0
+    while nxt < n or queue:
+        while nxt < n and out.arrivals[nxt] <= clock:
+            queue.append(nxt)
+            nxt += 1
+            if len(queue) > queue_size:
+                out.dropped.append(queue.popleft())
+        if not queue:
+            clock = float(out.arrivals[nxt])
+            continue
+        i = queue.popleft()
+        out.processed.append(i)
+        out.starts.append(clock)
+        clock += process(i)
+        out.finishes.append(clock)
+    return out
+
+
+# ----------------------------------------------------------------------------- pipeline and baselines
+class StreamRunner:
+    """Pushes frames of ``ds`` into a fresh :class:`FrameStream`, each with the IMU samples since
+    the previous push; times each push; keeps each result's timings and whether it had depth."""
+
+    def __init__(self, ds: data.StreamData):
+        self.ds = ds
+        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing)
+        self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind)
+        self.imu_done = -np.inf
+        self.seconds: list[float] = []
+        self.timings: list[dict[str, float]] = []
+        self.with_depth = 0
+        self.statuses: dict[str, int] = {}
+
+    def __call__(self, i: int) -> float:
+        ds = self.ds
+        image, disparity = ds.load(i)  # decoding: not timed
+        t = float(ds.timestamps[i])
+        imu = None
+        if ds.imu is not None:
+            new = (ds.imu.t > self.imu_done) & (ds.imu.t <= t)
+            imu = (ds.imu.t[new], ds.imu.gyro[new], ds.imu.accel[new])
+            self.imu_done = t
+        T_w_c = None if ds.T_w_c is None else ds.T_w_c[i]
+        start = time.perf_counter()
+        result = self.stream.push(image, disparity, timestamp=t, T_w_c=T_w_c, imu=imu)
+        seconds = time.perf_counter() - start
+        self.seconds.append(seconds)
+        self.timings.append(dict(result.timings))
+        self.with_depth += result.depth is not None
+        self.statuses[result.status.value] = self.statuses.get(result.status.value, 0) + 1
+        return seconds
+
+
+class BareSift:
+    """OpenCV SIFT with the project's settings, detect + describe per frame."""
+
+    name = "bare SIFT"
+
+    def __init__(self):
+        s = SiftSettings()
+        self.sift = cv2.SIFT_create(nfeatures=s.max_features, nOctaveLayers=s.n_octave_layers,
+                                    contrastThreshold=s.contrast_threshold, edgeThreshold=s.edge_threshold,
+                                    sigma=s.sigma)
+
+    def __call__(self, image: np.ndarray) -> None:
+        self.sift.detectAndCompute(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), None)
+
+
+class BareKlt:
+    """KLT tracks frame to frame, topped up with corners away from the tracks when too few survive."""
+
+    name = "bare KLT"
+
+    def __init__(self):
+        self.prev: np.ndarray | None = None
+        self.points = np.zeros((0, 1, 2), np.float32)
+        self.tracked: list[int] = []
+
+    def __call__(self, image: np.ndarray) -> None:
+        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+        if self.prev is not None and len(self.points):
+            nxt, ok, _ = cv2.calcOpticalFlowPyrLK(self.prev, grey, self.points, None, winSize=(21, 21), maxLevel=3)
+            self.points = nxt[ok.ravel() == 1].reshape(-1, 1, 2)
+        self.tracked.append(len(self.points))
+        if len(self.points) < KLT_MIN:
+            mask = np.full(grey.shape, 255, np.uint8)
+            for x, y in self.points.reshape(-1, 2):
+                cv2.circle(mask, (int(x), int(y)), KLT_SPACING, 0, -1)
+            new = cv2.goodFeaturesToTrack(grey, KLT_MAX - len(self.points), 0.01, KLT_SPACING, mask=mask)
+            if new is not None:
+                self.points = np.concatenate([self.points, new.astype(np.float32)])
+        self.prev = grey
+
+
+def run_baseline(ds: data.StreamData, baseline) -> Replay:
+    def process(i: int) -> float:
+        image, _ = ds.load(i)
+        start = time.perf_counter()
+        baseline(image)
+        return time.perf_counter() - start
+
+    return replay(ds.timestamps, process, rate_scale=None)
+
+
+# ----------------------------------------------------------------------------- memory, rows, table
+def reset_peak_rss() -> bool:
+    """Reset this process's ``VmHWM`` to its current RSS (Linux); False when not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss_mib() -> float | None:
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
+    except (OSError, StopIteration):
+        return None
+
+
+@dataclass
+class Row:
+    dataset: str
+    size: str
+    what: str  # "vio" / "gt" / a baseline's name
+    mode: str  # "realtime x1" / "afap"
+    frames: int
+    replay: Replay
+    with_depth: int | None = None
+    stages: dict[str, float] | None = None  # mean ms per stage, "other", "total"
+    rss_mib: float | None = None
+    statuses: dict[str, int] | None = None
+
+    def cells(self) -> list[str]:
+        r = self.replay
+        lat = 1000 * r.latencies
+        p50, p90, p99 = (np.percentile(lat, q) for q in (50, 90, 99)) if len(lat) else (np.nan,) * 3
+        baseline = self.with_depth is None
+        return [self.dataset, self.size, self.what, self.mode, str(self.frames), str(len(r.processed)),
+                "-" if baseline else str(len(r.dropped)), "-" if baseline or r.afap else str(r.late),
+                "-" if baseline else str(self.with_depth), f"{r.fps:.1f}", f"{p50:.0f}", f"{p90:.0f}", f"{p99:.0f}",
+                "-" if self.rss_mib is None else f"{self.rss_mib:.0f}"]
+
+
+HEADER = ["dataset", "size", "poses / baseline", "mode", "frames", "processed", "dropped", "late", "with depth",
+          "frames/s", "latency p50 ms", "p90 ms", "p99 ms", "peak RSS MiB"]
+
+
+def stage_means(runner: StreamRunner) -> dict[str, float]:
+    n = max(len(runner.timings), 1)
+    means = {s: 1000 * sum(t.get(s, 0.0) for t in runner.timings) / n for s in STAGES}
+    means["total"] = 1000 * sum(runner.seconds) / n
+    means["other"] = means["total"] - sum(means[s] for s in PIPELINE_STAGES)
+    return means
+
+
+def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int) -> Row:
+    if warmup:
+        warm = StreamRunner(ds)
+        for i in range(min(warmup, len(ds))):
+            warm(i)
+        del warm
+    runner = StreamRunner(ds)
+    reset_peak_rss()
+    result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size)
+    mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
+    return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
+               peak_rss_mib(), dict(runner.statuses))
+
+
+def baseline_row(ds: data.StreamData, baseline) -> Row:
+    reset_peak_rss()
+    result = run_baseline(ds, baseline)
+    return Row(ds.name, ds.size, baseline.name, "afap", len(ds), result, rss_mib=peak_rss_mib())
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def verdicts(rows: list[Row]) -> list[str]:
+    """Issue 24's targets on the rows measured."""
+    out = []
+    for row in rows:
+        if row.what == "vio" and row.mode == "afap":
+            rt = [r for r in rows if r.dataset == row.dataset and r.what == "vio" and r.mode == "realtime x1"]
+            ok_fps = row.replay.fps >= 20
+            size = row.size if row.size == "752x480" else f"{row.size}, indicative: the target is stated for 752x480"
+            text = f"- {row.dataset} --poses vio ({size}): {row.replay.fps:.1f} frames/s as fast as possible " \
+                   f"({'>=' if ok_fps else '<'} 20)"
+            ok = ok_fps
+            if rt:
+                p99 = float(np.percentile(1000 * rt[0].replay.latencies, 99))
+                drops = len(rt[0].replay.dropped)
+                ok = ok and p99 <= 100 and drops == 0
+                text += f"; at the recorded rate: p99 {p99:.0f} ms ({'<=' if p99 <= 100 else '>'} 100), " \
+                        f"{drops} of {rt[0].frames} frames dropped"
+            else:
+                text += "; no recorded-rate row (p99 target not checked)"
+            out.append(f"{text}: **{'PASS' if ok else 'FAIL'}**")
+        if row.what == "gt" and row.size == "1242x375" and row.mode == "afap":
+            sift = [r for r in rows if r.dataset == row.dataset and r.what == BareSift.name]
+            if not sift:
+                out.append(f"- {row.dataset} --poses gt (1242x375): no bare SIFT row (baselines off): not checked")
+                continue
+            ratio = row.replay.fps / sift[0].replay.fps
+            out.append(f"- {row.dataset} --poses gt (1242x375): {row.replay.fps:.1f} frames/s = {ratio:.2f} x "
+                       f"bare SIFT "
+                       f"({sift[0].replay.fps:.1f}) ({'>=' if ratio >= 0.8 else '<'} 0.8): "
+                       f"**{'PASS' if ratio >= 0.8 else 'FAIL'}**")
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", default=",".join(data.DATASETS),
+                        help=f"comma-separated, of {', '.join(data.DATASETS)}")
+    parser.add_argument("--max-frames", type=int, default=None, help="first N frames of each dataset")
+    parser.add_argument("--rate-scale", type=float, default=1.0, help="playback speed of the recorded rate")
+    parser.add_argument("--modes", default="realtime,afap", help="realtime (at --rate-scale) and/or afap")
+    parser.add_argument("--queue-size", type=int, default=1, help="frames that may wait (oldest dropped when full)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed frames streamed before each pipeline row")
+    parser.add_argument("--no-baselines", action="store_true")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    args = parser.parse_args(argv)
+    names = [n for n in args.datasets.split(",") if n]
+    unknown = [n for n in names if n not in data.DATASETS]
+    modes = [m for m in args.modes.split(",") if m]
+    if unknown:
+        parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
+    if not modes or not set(modes) <= {"realtime", "afap"}:
+        parser.error(f"unknown mode(s) in {args.modes!r} (valid: realtime, afap)")
+    if not args.rate_scale > 0 or args.queue_size < 1:
+        parser.error("--rate-scale must be positive and --queue-size at least 1")
+    print(f"# machine: {platform.machine()} {platform.processor() or ''}, {os.cpu_count()} cores, Python "
+          f"{platform.python_version()}, OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads), numpy "
+          f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start. Times on a shared machine vary.")
+    print(f"# replay: rate x{args.rate_scale:g}, queue {args.queue_size} (oldest dropped), "
+          f"warm-up {args.warmup} frames")
+    rows: list[Row] = []
+    for name in names:
+        ds = data.DATASETS[name](args.cache, log=print)
+        if ds is None:
+            print(f"\n({name}: data not present under {data.SHARED}: skipped)")
+            continue
+        ds = ds.truncated(args.max_frames)
+        rate = (len(ds) - 1) / (ds.timestamps[-1] - ds.timestamps[0]) if len(ds) > 1 else float("nan")
+        print(f"\n## {name} ({ds.size}, {len(ds)} frames, {rate:.1f} Hz, --poses {ds.poses}, --pairing "
+              f"{ds.pairing}): {ds.description}", flush=True)
+        for mode in modes:
+            row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup)
+            rows.append(row)
+            print(f"  {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
+        if not args.no_baselines:
+            for baseline in (BareSift(), BareKlt()):
+                rows.append(baseline_row(ds, baseline))
+                print(f"  {baseline.name}: {rows[-1].replay.fps:.1f} frames/s", flush=True)
+    if not rows:
+        print("no dataset present: nothing measured")
+        return 0
+    print("\n" + table(HEADER, [r.cells() for r in rows]))
+    stage_rows = [[r.dataset, r.what, r.mode, *(f"{r.stages[s]:.1f}" for s in (*STAGES, "other", "total"))]
+                  for r in rows if r.stages is not None]
+    print("\nPer stage, mean ms per processed frame (matching and triangulation are parts of points):\n")
+    print(table(["dataset", "poses", "mode", *STAGES, "other", "total"], stage_rows))
+    print("\nVerdict against issue 24's targets:")
+    print("\n".join(verdicts(rows)) or "- no row of a target's kind measured")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
