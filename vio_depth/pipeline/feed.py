@@ -10,18 +10,24 @@ arrived, and hands it the grown samples after.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
 from matchers import Features, Matcher
 from vio_core.checks import check_array
+from vio_core.errors import InputError
 
 from ..frame import Frame, ImuData
 from ..poses import FramePose, RelativePose
 
 #: the reason of every pose asked for before the first IMU samples
 NO_SAMPLES_YET = "no IMU samples pushed yet"
+
+
+def _image_not_kept() -> np.ndarray:
+    raise InputError("a stream keeps the timestamps and poses of past frames, not their images")
 
 
 class StreamInputs:
@@ -37,7 +43,7 @@ class StreamInputs:
     def __init__(self, pose_kind: str = "exact", imu_calibration: ImuData | None = None):
         self.pose_kind = pose_kind
         self.imu_calibration = imu_calibration
-        #: the frames pushed so far, in order
+        #: the frames pushed so far, in order, without their pixels (:meth:`add_frame`)
         self.frames: list[Frame] = []
         #: the samples pushed so far with the calibration; None before the first ones or without calibration
         self.imu: ImuData | None = None
@@ -50,6 +56,12 @@ class StreamInputs:
 
     def __getitem__(self, index: int) -> Frame:
         return self.frames[index]
+
+    def add_frame(self, frame: Frame) -> None:
+        """Append ``frame``, keeping its index, timestamp and pose only: a pose source reads
+        nothing else of past frames, and keeping every pushed image (and depth) would grow
+        a long stream's memory by a frame's pixels per push."""
+        self.frames.append(replace(frame, load_image=_image_not_kept, load_gt_depth=None))
 
     def add_imu(self, t, gyro, accel) -> None:
         """Append IMU samples: ``t`` (M,) seconds, ``gyro`` (M, 3) rad/s, ``accel`` (M, 3) m/s^2.

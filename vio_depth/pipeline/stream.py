@@ -112,7 +112,7 @@ class FrameStream:
             self._inputs.add_imu(*imu)
         frame = Frame(index, t, f"{index:06d}", self.camera, pose, load_image=lambda: image,
                       load_gt_depth=None if depth is None else (lambda: depth))
-        frames.append(frame)
+        self._inputs.add_frame(frame)
         self._disparity.current = None if disparity is None else np.asarray(disparity)
         try:
             return self.pipeline.process(frame)
