@@ -70,9 +70,10 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: sift)")
     g.add_argument("--device", default=None, choices=["cpu", "cuda"],
                    help="device of a learned matcher or Depth Anything model (default: cuda when available)")
-    g.add_argument("--poses", default=None, help="pose source: gt (sequence poses), imu (gtsam preintegration) or "
+    g.add_argument("--poses", default=None, help="pose source: gt (sequence poses), imu (gtsam preintegration), "
                                                  "imu_real_mav (imu, accelerometer noise x10 for a real IMU on a "
-                                                 "vibrating vehicle)")
+                                                 "vibrating vehicle) or vio (visual-inertial odometry from the "
+                                                 "images and the IMU alone; docs/vio.md)")
     g.add_argument("--pairing", default=None,
                    help="pair-selection preset: kitti (5 deg / 1.5 m, default), ddad (5 deg / 2 m), indoor (5 deg / 0.15 m)")
     g.add_argument("--min-rotation", type=float, default=None, metavar="DEG", help="override the rotation threshold")
