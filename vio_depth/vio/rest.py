@@ -339,6 +339,9 @@ class RestDetector:
         prev = self._previous
         if prev is None or not self._previous_posed:
             return RestTest(False, "rest continues a posed frame only")
+        speed = float(np.linalg.norm(state.velocity_w))
+        if not speed <= s.max_speed_m_s:
+            return RestTest(False, f"the odometry estimates {speed:.2f} m/s at the newest keyframe")
         # IMU: the samples since the previous frame (at least min_imu_s)
         imu = self.factors.imu.window(min(prev[1], t - s.min_imu_s), t)
         R_kf = self._rotation(state, state.t, t)

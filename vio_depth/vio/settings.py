@@ -91,6 +91,10 @@ class RestSettings:
 
     A tracked frame rests when all of these pass:
 
+    * the odometry: the newest keyframe's estimated speed is at most ``max_speed_m_s``
+      (OpenVINS's ``zupt_max_velocity``): a camera the odometry tracks in uniform motion is not
+      at rest, however little its keypoints move from one frame to the next;
+
     * IMU: the samples since the previous frame (at least ``min_imu_s`` of them), averaged
       over blocks of ``imu_block_s`` (vibration averages out), fit the zero-velocity
       hypothesis, gyroscope = bias and accelerometer = gravity in the body frame + bias (the
@@ -119,6 +123,7 @@ class RestSettings:
     the anchor's (a motion too slow to detect still adds up).
 
     Attributes:
+        max_speed_m_s: the newest keyframe's estimated speed, m/s, above which no frame rests.
         imu_noise_multiplier: factor on the IMU noise variances in the test (OpenVINS
             ``zupt_noise_multiplier``): a resting platform vibrates. On the EuRoC V1_01 still
             slice (rotors running) the 0.25 s accelerometer standard deviation is 0.1-1.3 m/s^2
@@ -145,6 +150,7 @@ class RestSettings:
         rotation_random_walk: rad/sqrt(s), growth of its orientation sigma.
     """
 
+    max_speed_m_s: float = 0.05
     imu_noise_multiplier: float = 400.0
     chi2_probability: float = 0.99
     tilt_sigma_rad: float = 0.01
@@ -161,7 +167,7 @@ class RestSettings:
     rotation_random_walk: float = 0.001
 
     def __post_init__(self):
-        require_positive(self, "imu_noise_multiplier", "tilt_sigma_rad", "accel_bias_sigma", "gyro_bias_sigma",
+        require_positive(self, "max_speed_m_s", "imu_noise_multiplier", "tilt_sigma_rad", "accel_bias_sigma", "gyro_bias_sigma",
                          "min_imu_s", "imu_block_s", "max_disparity_px", "max_anchor_motion", "anchor_motion_sigmas",
                          "gyro_bias_window_s", "translation_random_walk",
                          "rotation_random_walk")

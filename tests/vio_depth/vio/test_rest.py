@@ -70,6 +70,21 @@ def test_a_camera_creeping_sideways_is_never_held_more_than_1cm_from_the_truth(s
     _assert_creep_caught(speed, SIDEWAYS)
 
 
+def test_a_camera_tracked_in_uniform_motion_does_not_rest():
+    """Creeping sideways at 10 cm/s (seed 1): once the odometry tracks the creep again, its
+    keyframes' velocity says the camera moves, and no frame rests (OpenVINS's
+    ``zupt_max_velocity``). Without that check every other frame rested there, held 5 mm
+    behind: uniform motion passes the IMU test, 5 mm at 3-6 m moves keypoints less than the
+    1.5 px frame-to-frame limit, and the motion since the previous frame (the anchor) stays
+    within 0.1 % of the depth."""
+    scene = make_scene(duration_s=5.0, seed=1, trajectory=creeping(0.10, still_s=STILL_S, direction_w=SIDEWAYS))
+    out = _run(scene)
+    tracked = [i for i, v in enumerate(out) if v.status == VioStatus.TRACKING and scene.frames[i].timestamp > STILL_S]
+    assert tracked, [v.status.value for v in out]
+    later = [i for i in range(tracked[0], len(out)) if out[i].status == VioStatus.STILL]
+    assert not later, [(i, out[i].reason) for i in later[:3]]
+
+
 def _assert_creep_caught(speed, direction_w):
     scene = make_scene(duration_s=5.0, seed=11, trajectory=creeping(speed, still_s=STILL_S, direction_w=direction_w))
     out = _run(scene)
