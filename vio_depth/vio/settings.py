@@ -167,9 +167,9 @@ class RestSettings:
     rotation_random_walk: float = 0.001
 
     def __post_init__(self):
-        require_positive(self, "max_speed_m_s", "imu_noise_multiplier", "tilt_sigma_rad", "accel_bias_sigma", "gyro_bias_sigma",
-                         "min_imu_s", "imu_block_s", "max_disparity_px", "max_anchor_motion", "anchor_motion_sigmas",
-                         "gyro_bias_window_s", "translation_random_walk",
+        require_positive(self, "max_speed_m_s", "imu_noise_multiplier", "tilt_sigma_rad", "accel_bias_sigma",
+                         "gyro_bias_sigma", "min_imu_s", "imu_block_s", "max_disparity_px", "max_anchor_motion",
+                         "anchor_motion_sigmas", "gyro_bias_window_s", "translation_random_walk",
                          "rotation_random_walk")
         if not 0.0 < self.chi2_probability < 1.0:
             raise SettingsError(f"RestSettings.chi2_probability must be in (0, 1), got {self.chi2_probability}")
