@@ -19,8 +19,10 @@ rotation's uncertainty, measured on the gyroscope's own scatter at rest (a motio
 view counts whatever the rotation). On the real EuRoC V1_01 still slice, whose platform
 vibrates (rotors running), the static start's gyroscope bias is off by 1-2 mrad/s and a fixed
 threshold ended the rest after 1.7 s (the odometry then withheld its poses, ``converging``);
-now the slice is held still to its end. A camera creeping sideways slower than about 3 times
-that rotation uncertainty times the depth cannot be told from a gyroscope bias by these tests.
+now the slice is held still to its end. A camera creeping sideways slower than about that
+rotation uncertainty times the depth cannot be told from a gyroscope bias by these tests.
+As in OpenVINS (``zupt_max_velocity``), no frame rests while the odometry's newest keyframe
+moves faster than ``RestSettings.max_speed_m_s``.
 
 A resting frame keeps the position of the anchor (the last frame before the rest, posed by
 the odometry), its orientation follows the gyroscope since the anchor, and its covariance
