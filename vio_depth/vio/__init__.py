@@ -26,13 +26,15 @@ from .estimator import VioEstimator, VioFrame, VioStatus
 from .history import PoseHistory, PoseRecord
 from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Candidate, Initializer, InitKind, InitResult
-from .rest import RestAnchor, RestDetector, RestTest, zero_velocity_chi2
+from .rest import (AnchorMotion, RestAnchor, RestDetector, RestTest, anchor_motion, gyro_rotation_sigma,
+                   zero_velocity_chi2)
 from .settings import RestSettings, VioInitSettings, VioSettings
 from .sfm import SfmKeyframe, SfmResult, reconstruct
 from .source import VioPoseSource
 
 __all__ = [
     "Alignment",
+    "AnchorMotion",
     "Candidate",
     "FrameBridges",
     "ImuFactors",
@@ -55,7 +57,9 @@ __all__ = [
     "VioSettings",
     "VioStatus",
     "align",
+    "anchor_motion",
     "estimate_gyro_bias",
+    "gyro_rotation_sigma",
     "reconstruct",
     "zero_velocity_chi2",
 ]
