@@ -1,0 +1,305 @@
+"""Pose-guided matching: nearest neighbours only inside each keypoint's epipolar band.
+
+When the relative pose of two images is known before matching (ground truth, IMU
+preintegration, the odometry), the match of a keypoint of image ``a`` lies on its epipolar
+line in image ``b``, up to the keypoint noise and the error of the pose. Guided matching
+compares each keypoint only with the keypoints of ``b`` inside that band and takes the
+nearest neighbour there (Lowe's ratio test and the mutual check among in-band candidates,
+as :func:`matchers.sift.ratio_match` does over the whole image). A repeated texture
+elsewhere in the image can then neither be matched nor spoil the ratio test of a good match.
+
+The band of the pair ``(i, j)`` (keypoint ``i`` of ``a``, ``j`` of ``b``)::
+
+    |d_ij| <= floor_px + sigmas * sigma_ij
+
+``d_ij``: the distance (ideal pixels of ``b``) of keypoint ``j`` from the epipolar line of
+``i``; ``sigma_ij``: the 1-sigma displacement of that line at keypoint ``j`` caused by the
+pose error, first order: with ``T_b_a = (R, t)`` and the right perturbation
+``T_b_a Exp(xi)``, ``xi = (rotation rad, translation m)`` in camera ``a``'s frame (the
+convention of :attr:`vio_depth.poses.RelativePose.covariance`, gtsam's ``Pose3``), the
+normalised epipolar line ``l_i = t x R x_i`` moves by ``A_i xi`` with
+``A_i = [-[t]x R [x_i]x, -[R x_i]x R]``; so ``Cov(l_i) = A_i Sigma A_i^T`` and
+``sigma_ij^2 = x_j^T Cov(l_i) x_j`` (in pixel coordinates, divided by the squared norm of the
+line's normal). The band therefore widens along the line away from where the pose error
+pivots it; without a covariance (an exact pose) it is ``floor_px`` wide.
+
+The band is tested for all pairs at once, a block of rows at a time (two small matrix
+products of widths 3 and 6 and a few element-wise passes); descriptor similarities are
+computed only for the in-band pairs (or, where a block's band is dense, by one matrix
+product masked to the band). No Python loop runs per keypoint.
+
+A pose without translation has no epipolar geometry (every line degenerates): such pairs are
+matched exhaustively (:func:`matchers.sift.ratio_match`), as are keypoints whose line is
+undefined (a keypoint at the epipole of ``a``: all of ``b`` is its band).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from vio_core.camera import Camera
+from vio_core.checks import check_array, check_transform
+from vio_core.errors import InputError, SettingsError
+from vio_core.geometry import skew
+
+from .base import Features, Matcher, Matches
+
+#: the similarity a missing second in-band candidate counts as: an orthogonal descriptor,
+#: distance sqrt(2), the farthest two non-negative unit descriptors (SIFT, RootSIFT) can be
+ABSENT_SECOND_SIMILARITY = 0.0
+#: a block whose band holds more than this fraction of its pairs gets its similarities from
+#: one masked matrix product instead of per-pair dot products (equal up to float32 rounding)
+DENSE_BAND_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class GuidedSettings:
+    """Pose-guided matching (:mod:`matchers.guided`), an option of nearest-neighbour matchers.
+
+    Attributes:
+        enabled: match inside the epipolar band where the relative pose is known (default
+            off: exhaustive matching, as before).
+        floor_px: half-width of the band for an exact pose, ideal pixels: the keypoints'
+            noise and what the triangulation's Sampson test (1.5 px) still accepts.
+        sigmas: the band widens by this many 1-sigma displacements of the epipolar line
+            caused by the stated pose covariance.
+        block_rows: keypoints of ``a`` tested against the band at once (memory about
+            ``20 * block_rows * len(b)`` bytes).
+    """
+
+    enabled: bool = False
+    floor_px: float = 3.0
+    sigmas: float = 3.0
+    block_rows: int = 1024
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, bool):
+            raise SettingsError(f"guided.enabled must be true or false, got {self.enabled!r}")
+        if not (math.isfinite(self.floor_px) and self.floor_px > 0):
+            raise SettingsError(f"guided.floor_px must be finite and > 0, got {self.floor_px!r}")
+        if not (math.isfinite(self.sigmas) and self.sigmas >= 0):
+            raise SettingsError(f"guided.sigmas must be finite and >= 0, got {self.sigmas!r}")
+        if isinstance(self.block_rows, bool) or not isinstance(self.block_rows, int) or self.block_rows < 1:
+            raise SettingsError(f"guided.block_rows must be an integer >= 1, got {self.block_rows!r}")
+
+
+@dataclass(frozen=True)
+class EpipolarPrior:
+    """What is known, before matching, of the pose of image ``a``'s camera in image ``b``'s.
+
+    Attributes:
+        camera_a, camera_b: the cameras of the two images (keypoints are raw pixels;
+            they are undistorted before the epipolar geometry is applied).
+        T_b_a: (4, 4) camera-a-to-camera-b transform, metres.
+        covariance: (6, 6) covariance of its right-perturbation error (rotation rad, then
+            translation m; module docstring), or None for an exact pose.
+    """
+
+    camera_a: Camera
+    camera_b: Camera
+    T_b_a: np.ndarray
+    covariance: np.ndarray | None = None
+
+    def __post_init__(self):
+        check_transform("T_b_a", self.T_b_a)
+        if self.covariance is not None:
+            check_array("covariance", self.covariance, (6, 6), finite=True)
+
+    @property
+    def has_baseline(self) -> bool:
+        """False for a pose without translation (no epipolar geometry)."""
+        return bool(np.linalg.norm(self.T_b_a[:3, 3]) > 1e-9)
+
+
+@runtime_checkable
+class PoseGuidedMatcher(Matcher, Protocol):
+    """A matcher that can use a relative pose known before matching (e.g. :class:`SiftMatcher`)."""
+
+    def match_with_pose(self, feats_a: Features, feats_b: Features, prior: EpipolarPrior) -> Matches:
+        """Correspondences given ``a``'s pose in ``b`` (the same as ``match`` when the matcher's
+        guided matching is off)."""
+
+
+def epipolar_lines(prior: EpipolarPrior, uv_a) -> tuple[np.ndarray, np.ndarray]:
+    """Each keypoint's epipolar line in image ``b`` and the covariance of that line.
+
+    Args:
+        prior: the relative pose and cameras.
+        uv_a: (N, 2) ideal (undistorted) pixels in image ``a``.
+
+    Returns:
+        ``(lines, cov)``: ``lines (N, 3)`` the lines ``l . (u, v, 1) = 0`` in ideal pixels of
+        ``b``, scaled so that ``l . (u, v, 1)`` is the signed distance in pixels (rows whose
+        line is undefined are zero); ``cov (N, 3, 3)`` the covariance of each scaled line
+        from the pose covariance (zeros without one).
+    """
+    uv_a = check_array("uv_a", uv_a, (None, 2))
+    R, t = prior.T_b_a[:3, :3], prior.T_b_a[:3, 3]
+    Ka_inv, Kb_inv = np.linalg.inv(prior.camera_a.K), np.linalg.inv(prior.camera_b.K)
+    x = np.column_stack([uv_a, np.ones(len(uv_a))]) @ Ka_inv.T  # (N, 3) normalised rays of a
+    u = x @ R.T
+    lines_n = np.cross(t, u)  # t x R x: the line in normalised coordinates of b
+    lines = lines_n @ Kb_inv  # K_b^-T l, as rows
+    norm = np.linalg.norm(lines[:, :2], axis=1)
+    defined = norm > 1e-12 * max(1.0, float(np.abs(lines).max(initial=0.0)))
+    scale = np.where(defined, 1.0 / np.where(defined, norm, 1.0), 0.0)
+    cov = np.zeros((len(uv_a), 3, 3))
+    if prior.covariance is not None:
+        # A_i = [-[t]x R [x_i]x, -[u_i]x R] (module docstring), then to pixel lines of b
+        tR = skew(t) @ R
+        A = np.concatenate([-np.einsum("ij,njk->nik", tR, skew_rows(x)), -skew_rows(u) @ R], axis=2)  # (N, 3, 6)
+        A = np.einsum("ji,njk->nik", Kb_inv, A)  # K_b^-T A
+        cov = A @ prior.covariance @ A.transpose(0, 2, 1)
+    return lines * scale[:, None], cov * (scale**2)[:, None, None]
+
+
+def skew_rows(v) -> np.ndarray:
+    """``(N, 3, 3)`` cross-product matrices of the rows of ``v: (N, 3)``."""
+    v = check_array("v", v, (None, 3))
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
+
+
+def band_half_widths(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Distances to the epipolar lines and the band's half-widths for all pairs (dense; for
+    tests and diagnostics: :func:`guided_ratio_match` does the same in blocks).
+
+    Args:
+        prior: the relative pose and cameras.
+        uv_a: (Na, 2) ideal pixels of image ``a``. uv_b: (Nb, 2) ideal pixels of image ``b``.
+        settings: the band's floor and sigma multiple.
+
+    Returns:
+        ``(distance, half_width)``, each (Na, Nb) pixels of ``b``: ``|d_ij|`` and
+        ``floor_px + sigmas * sigma_ij`` (inf in rows whose line is undefined).
+    """
+    uv_b = check_array("uv_b", uv_b, (None, 2))
+    lines, cov = epipolar_lines(prior, uv_a)
+    xb = np.column_stack([uv_b, np.ones(len(uv_b))])
+    distance = np.abs(lines @ xb.T)
+    sigma = np.sqrt(np.maximum(np.einsum("jk,ikl,jl->ij", xb, cov, xb), 0.0))
+    half = settings.floor_px + settings.sigmas * sigma
+    half[~lines.any(axis=1)] = np.inf
+    return distance, half
+
+
+def _quadratic_terms(xb: np.ndarray) -> np.ndarray:
+    """(N, 6) monomials of ``x^T C x`` for rows ``x = (u, v, 1)``."""
+    u, v = xb[:, 0], xb[:, 1]
+    return np.column_stack([u * u, v * v, np.ones(len(u)), 2 * u * v, 2 * u, 2 * v])
+
+
+def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
+    """The in-band pairs ``(rows, cols, similarities)``, row-major (rows, then cols, ascending)."""
+    lines, cov = epipolar_lines(prior, uv_a)
+    undefined = ~lines.any(axis=1)
+    k2 = settings.sigmas**2
+    # x^T C x as (N, 6) . (M, 6): the six distinct entries of each line covariance, times sigmas^2
+    c6 = k2 * np.column_stack([cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2], cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]])
+    xb = np.column_stack([uv_b, np.ones(len(uv_b))])
+    lines32, c32 = lines.astype(np.float32), c6.astype(np.float32)
+    xb32, q32 = xb.T.astype(np.float32).copy(), _quadratic_terms(xb).T.astype(np.float32).copy()
+    has_cov = bool(np.any(c6))
+    floor = np.float32(settings.floor_px)
+    rows, cols, sims = [], [], []
+    for start in range(0, len(uv_a), settings.block_rows):
+        stop = min(start + settings.block_rows, len(uv_a))
+        d = lines32[start:stop] @ xb32
+        np.abs(d, out=d)
+        if has_cov:  # |d| <= floor + k sigma  <=>  max(|d| - floor, 0)^2 <= k^2 sigma^2
+            d -= floor
+            np.maximum(d, 0, out=d)
+            d *= d
+            mask = d <= c32[start:stop] @ q32
+        else:
+            mask = d <= floor
+        mask[undefined[start:stop]] = True
+        flat = np.flatnonzero(mask)
+        r, c = np.divmod(flat, len(uv_b))
+        if len(flat) > DENSE_BAND_FRACTION * mask.size:
+            s = (desc_a[start:stop] @ desc_b.T).ravel()[flat]
+        else:
+            s = np.einsum("ij,ij->i", desc_a[start + r], desc_b[c])
+        rows.append(r + start)
+        cols.append(c)
+        sims.append(s.astype(np.float32, copy=False))
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(sims)
+
+
+def _two_best_grouped(key, other, sims):
+    """Per group of equal ``key`` (sorted; ``other`` ascending within a group): the key, the
+    ``other`` of the best similarity (ties: the lowest), the best and the second best
+    similarity (:data:`ABSENT_SECOND_SIMILARITY` for a group of one)."""
+    new = np.r_[True, key[1:] != key[:-1]]
+    first = np.flatnonzero(new)
+    group = np.cumsum(new) - 1
+    best = np.maximum.reduceat(sims, first)
+    at = np.flatnonzero(sims == best[group])
+    at = at[np.r_[True, group[at][1:] != group[at][:-1]]]
+    rest = sims.copy()
+    rest[at] = -np.inf
+    second = np.maximum.reduceat(rest, first)
+    second[~np.isfinite(second)] = ABSENT_SECOND_SIMILARITY
+    return key[first], other[at], best, second
+
+
+def _distances(s: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.maximum(2.0 - 2.0 * s, 0.0))
+
+
+def guided_ratio_match(desc_a, desc_b, uv_a, uv_b, prior: EpipolarPrior, settings: GuidedSettings,
+                       ratio: float = 0.8, mutual: bool = True) -> Matches:
+    """Lowe ratio test (and the mutual check) among the in-band candidates of each keypoint.
+
+    Args:
+        desc_a: (Na, D) float32 unit-L2 descriptors of image ``a``; desc_b: (Nb, D) of ``b``.
+        uv_a: (Na, 2) ideal (undistorted) pixels of ``a``'s keypoints; uv_b: (Nb, 2) of ``b``'s.
+        prior: the relative pose of ``a`` in ``b``, its covariance and the cameras.
+        settings: the band (:class:`GuidedSettings`; ``enabled`` is not consulted here).
+        ratio: Lowe's threshold on ``d1 / d2`` (Euclidean), in (0, 1].
+        mutual: also require ``b``'s nearest in-band neighbour to be ``a`` (and its ratio test).
+
+    Returns:
+        :class:`Matches` (ascending ``idx_a``) with confidence ``clip(1 - r / ratio, 0, 1)``
+        as :func:`matchers.sift.ratio_match`. A keypoint with a single in-band candidate
+        compares it with an orthogonal descriptor (:data:`ABSENT_SECOND_SIMILARITY`).
+        Fewer than 2 descriptors on either side: empty matches.
+    """
+    if not 0.0 < ratio <= 1.0:
+        raise InputError(f"ratio must be in (0, 1], got {ratio}")
+    a = np.ascontiguousarray(check_array("desc_a", desc_a, (None, None), dtype=np.float32))
+    b = np.ascontiguousarray(check_array("desc_b", desc_b, (None, a.shape[1]), dtype=np.float32))
+    uv_a = check_array("uv_a", uv_a, (len(a), 2), finite=True)
+    uv_b = check_array("uv_b", uv_b, (len(b), 2), finite=True)
+    if len(a) < 2 or len(b) < 2:
+        return Matches.empty()
+    rows, cols, sims = _band_pairs(prior, uv_a, uv_b, settings, a, b)
+    if len(rows) == 0:
+        return Matches.empty()
+    ia, nn_ab, s1, s2 = _two_best_grouped(rows, cols, sims)
+    d1, d2 = _distances(s1), _distances(s2)
+    tiny = np.float32(1e-12)
+    passed = d1 < ratio * d2
+    ia, nn_ab = ia[passed], nn_ab[passed]
+    r = d1[passed] / np.maximum(d2[passed], tiny)
+    if mutual:
+        order = np.argsort(cols, kind="stable")  # by column, rows ascending within
+        jb, nn_ba, t1, t2 = _two_best_grouped(cols[order], rows[order], sims[order])
+        e1, e2 = _distances(t1), _distances(t2)
+        back_nn = np.full(len(b), -1, np.int64)
+        back_ok = e1 < ratio * e2
+        back_nn[jb[back_ok]] = nn_ba[back_ok]
+        back_r = np.zeros(len(b), np.float32)
+        back_r[jb] = e1 / np.maximum(e2, tiny)
+        keep = back_nn[nn_ab] == ia
+        ia, nn_ab, r = ia[keep], nn_ab[keep], np.maximum(r[keep], back_r[nn_ab[keep]])
+    conf = np.clip(1.0 - r / ratio, 0.0, 1.0).astype(np.float32)
+    return Matches(ia.astype(np.int64), nn_ab.astype(np.int64), conf)
