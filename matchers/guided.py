@@ -23,10 +23,12 @@ normalised epipolar line ``l_i = t x R x_i`` moves by ``A_i xi`` with
 line's normal). The band therefore widens along the line away from where the pose error
 pivots it; without a covariance (an exact pose) it is ``floor_px`` wide.
 
-The band is tested for all pairs at once, a block of rows at a time (two small matrix
-products of widths 3 and 6 and a few element-wise passes); descriptor similarities are
-computed only for the in-band pairs (or, where a block's band is dense, by one matrix
-product masked to the band). No Python loop runs per keypoint.
+All epipolar lines in ``b`` pass through the epipole, so the candidates of a line are found
+without visiting every pair: ``b``'s keypoints are binned in rings around the epipole and
+sorted by angle; a line's candidates in a ring lie in an angular window found by binary
+search (:func:`_ring_candidates`, a superset of the band). Only those candidates are tested
+exactly against the band, and descriptor similarities are computed only for the in-band
+pairs. No Python loop runs per keypoint (only per ring and per block of rows).
 
 A pose without translation has no epipolar geometry (every line degenerates): such pairs are
 matched exhaustively (:func:`matchers.sift.ratio_match`), as are keypoints whose line is
@@ -51,9 +53,6 @@ from .base import Features, Matcher, Matches
 #: the similarity a missing second in-band candidate counts as: an orthogonal descriptor,
 #: distance sqrt(2), the farthest two non-negative unit descriptors (SIFT, RootSIFT) can be
 ABSENT_SECOND_SIMILARITY = 0.0
-#: a block whose band holds more than this fraction of its pairs gets its similarities from
-#: one masked matrix product instead of per-pair dot products (equal up to float32 rounding)
-DENSE_BAND_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -67,8 +66,8 @@ class GuidedSettings:
             noise and what the triangulation's Sampson test (1.5 px) still accepts.
         sigmas: the band widens by this many 1-sigma displacements of the epipolar line
             caused by the stated pose covariance.
-        block_rows: keypoints of ``a`` tested against the band at once (memory about
-            ``20 * block_rows * len(b)`` bytes).
+        block_rows: keypoints of ``a`` whose candidates are handled at once (memory about
+            ``100 * block_rows * len(b) * band fraction`` bytes).
     """
 
     enabled: bool = False
@@ -195,35 +194,112 @@ def _quadratic_terms(xb: np.ndarray) -> np.ndarray:
     return np.column_stack([u * u, v * v, np.ones(len(u)), 2 * u * v, 2 * u, 2 * v])
 
 
+#: keypoints of ``b`` are binned by their distance from the epipole in rings ``[R, 2 R)``
+#: starting at this radius (pixels; nearer keypoints are candidates of every line)
+_FIRST_RING_PX = 16.0
+#: where the epipole lies beyond this many pixels (translation nearly parallel to the image
+#: plane) it is placed at this distance: the lines then differ from parallel ones by less than
+#: ``extent^2 / _FAR_EPIPOLE_PX`` pixels, covered by :data:`_MARGIN_PX`
+_FAR_EPIPOLE_PX = 1e8
+_MARGIN_PX = 1.0
+#: a block of rows whose candidates exceed this fraction of its pairs is tested densely (two
+#: matrix products of widths 3 and 6 over the block); one whose in-band pairs exceed
+#: :data:`_PRODUCT_FRACTION` gets its similarities from one matrix product (a gathered dot
+#: product costs about as much as 20 entries of a matrix product, on one loaded core)
+_DENSE_FRACTION = 0.15
+_PRODUCT_FRACTION = 0.05
+
+
+def _ring_candidates(lines, bound, uv_b, max_pairs: int):
+    """``(rows, cols)``: every pair whose keypoint ``j`` may lie within ``bound[i]`` pixels of
+    line ``i`` (a superset of the band), grouped by row; None when there are more than
+    ``max_pairs``.
+
+    All epipolar lines pass through the epipole ``e``: keypoint ``j`` at angle ``theta_j`` and
+    distance ``r_j`` from ``e`` is ``r_j |sin(theta_j - phi_i)|`` from the line of direction
+    ``phi_i``. Keypoints are binned in rings ``r in [R, 2R)`` and sorted by angle (mod pi) in
+    each; a line's candidates in a ring are those within ``asin(bound / R)`` of its direction:
+    a few binary searches per line, no pass over all pairs.
+    """
+    # the epipole: the common point of the lines (the null vector of their scatter matrix)
+    defined = lines[np.any(lines, axis=1)]
+    e_h = np.linalg.svd(defined.T @ defined)[2][-1]
+    centre = 0.5 * (uv_b.min(axis=0) + uv_b.max(axis=0))
+    finite = abs(e_h[2]) > 0 and np.linalg.norm(e_h[:2] / e_h[2] - centre) < _FAR_EPIPOLE_PX
+    e = e_h[:2] / e_h[2] if finite else centre + _FAR_EPIPOLE_PX * e_h[:2] / np.linalg.norm(e_h[:2])
+    v = uv_b - e
+    r = np.hypot(v[:, 0], v[:, 1])
+    theta = np.mod(np.arctan2(v[:, 1], v[:, 0]), np.pi)
+    phi = np.mod(np.arctan2(-lines[:, 0], lines[:, 1]), np.pi)  # direction (b, -a) of a x + b y + c = 0
+    ring = np.floor(np.log2(np.maximum(r, _FIRST_RING_PX) / _FIRST_RING_PX)).astype(np.int64)
+    ring[r < _FIRST_RING_PX] = -1
+    rings = np.unique(ring)
+    starts, stops, offsets, pools = [], [], 0, []
+    for k in rings:  # a handful of rings (log2 of the image's extent)
+        members = np.flatnonzero(ring == k)
+        order = members[np.argsort(theta[members], kind="stable")]
+        t = theta[order]
+        pools.append(np.concatenate([order, order, order]))
+        n = len(order)
+        if k < 0:
+            lo, hi = np.full(len(lines), n), np.full(len(lines), 2 * n)
+        else:
+            radius = _FIRST_RING_PX * 2.0**k
+            half = np.arcsin(np.minimum(bound / radius, 1.0))
+            whole = bound >= radius
+            t3 = np.concatenate([t - np.pi, t, t + np.pi])
+            lo = np.searchsorted(t3, phi - half, side="left")
+            hi = np.searchsorted(t3, phi + half, side="right")
+            lo[whole], hi[whole] = n, 2 * n
+        starts.append(lo + offsets)
+        stops.append(hi + offsets)
+        offsets += 3 * n
+    pool = np.concatenate(pools)
+    lo, hi = np.column_stack(starts).ravel(), np.column_stack(stops).ravel()  # (rows x rings), row-major
+    counts = hi - lo
+    total = int(counts.sum())
+    if total > max_pairs:
+        return None
+    rows = np.repeat(np.repeat(np.arange(len(lines)), len(rings)), counts)
+    pos = np.arange(total) - np.repeat(np.cumsum(counts) - counts - lo, counts)
+    return rows, pool[pos]
+
+
 def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
-    """The in-band pairs ``(rows, cols, similarities)``, row-major (rows, then cols, ascending)."""
+    """The in-band pairs ``(rows, cols, similarities)``, grouped by row."""
     lines, cov = epipolar_lines(prior, uv_a)
     undefined = ~lines.any(axis=1)
     k2 = settings.sigmas**2
     # x^T C x as (N, 6) . (M, 6): the six distinct entries of each line covariance, times sigmas^2
     c6 = k2 * np.column_stack([cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2], cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]])
     xb = np.column_stack([uv_b, np.ones(len(uv_b))])
-    lines32, c32 = lines.astype(np.float32), c6.astype(np.float32)
-    xb32, q32 = xb.T.astype(np.float32).copy(), _quadratic_terms(xb).T.astype(np.float32).copy()
-    has_cov = bool(np.any(c6))
-    floor = np.float32(settings.floor_px)
+    q = _quadratic_terms(xb)
+    # each row's widest band over b's keypoints: x^T C x is convex, so its largest value over
+    # their bounding box is at a corner
+    lo, hi = uv_b.min(axis=0), uv_b.max(axis=0)
+    corners = np.array([[lo[0], lo[1], 1.0], [lo[0], hi[1], 1.0], [hi[0], lo[1], 1.0], [hi[0], hi[1], 1.0]])
+    bound = settings.floor_px + np.sqrt(np.maximum(c6 @ _quadratic_terms(corners).T, 0.0).max(axis=1)) + _MARGIN_PX
+    bound[undefined] = np.inf
     rows, cols, sims = [], [], []
     for start in range(0, len(uv_a), settings.block_rows):
-        stop = min(start + settings.block_rows, len(uv_a))
-        d = lines32[start:stop] @ xb32
-        np.abs(d, out=d)
-        if has_cov:  # |d| <= floor + k sigma  <=>  max(|d| - floor, 0)^2 <= k^2 sigma^2
-            d -= floor
-            np.maximum(d, 0, out=d)
-            d *= d
-            mask = d <= c32[start:stop] @ q32
+        block = slice(start, min(start + settings.block_rows, len(uv_a)))
+        n_pairs = (block.stop - start) * len(uv_b)
+        found = None
+        if not undefined[block].all():
+            found = _ring_candidates(lines[block], bound[block], uv_b, int(_DENSE_FRACTION * n_pairs))
+        if found is None:  # a wide band: test every pair of the block
+            d = np.abs(lines[block] @ xb.T)
+            inside = d <= settings.floor_px + np.sqrt(np.maximum(c6[block] @ q.T, 0.0))
+            inside[undefined[block]] = True
+            r, c = np.divmod(np.flatnonzero(inside), len(uv_b))
         else:
-            mask = d <= floor
-        mask[undefined[start:stop]] = True
-        flat = np.flatnonzero(mask)
-        r, c = np.divmod(flat, len(uv_b))
-        if len(flat) > DENSE_BAND_FRACTION * mask.size:
-            s = (desc_a[start:stop] @ desc_b.T).ravel()[flat]
+            r, c = found
+            d = np.abs(np.einsum("ij,ij->i", lines[start + r], xb[c]))
+            half = settings.floor_px + np.sqrt(np.maximum(np.einsum("ij,ij->i", c6[start + r], q[c]), 0.0))
+            inside = (d <= half) | undefined[start + r]
+            r, c = r[inside], c[inside]
+        if len(r) > _PRODUCT_FRACTION * n_pairs:
+            s = (desc_a[block] @ desc_b.T)[r, c]
         else:
             s = np.einsum("ij,ij->i", desc_a[start + r], desc_b[c])
         rows.append(r + start)
@@ -235,20 +311,18 @@ def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc
 
 
 def _two_best_grouped(key, other, sims):
-    """Per group of equal ``key`` (sorted; ``other`` ascending within a group): the key, the
-    ``other`` of the best similarity (ties: the lowest), the best and the second best
-    similarity (:data:`ABSENT_SECOND_SIMILARITY` for a group of one)."""
+    """Per group of equal ``key`` (contiguous): the key, the ``other`` of the best similarity
+    (ties: the lowest ``other``), the best and the second best similarity
+    (:data:`ABSENT_SECOND_SIMILARITY` for a group of one)."""
     new = np.r_[True, key[1:] != key[:-1]]
     first = np.flatnonzero(new)
     group = np.cumsum(new) - 1
     best = np.maximum.reduceat(sims, first)
-    at = np.flatnonzero(sims == best[group])
-    at = at[np.r_[True, group[at][1:] != group[at][:-1]]]
-    rest = sims.copy()
-    rest[at] = -np.inf
+    best_other = np.minimum.reduceat(np.where(sims == best[group], other, np.iinfo(np.int64).max), first)
+    rest = np.where(other == best_other[group], -np.inf, sims)
     second = np.maximum.reduceat(rest, first)
     second[~np.isfinite(second)] = ABSENT_SECOND_SIMILARITY
-    return key[first], other[at], best, second
+    return key[first], best_other, best, second
 
 
 def _distances(s: np.ndarray) -> np.ndarray:
@@ -290,8 +364,13 @@ def guided_ratio_match(desc_a, desc_b, uv_a, uv_b, prior: EpipolarPrior, setting
     passed = d1 < ratio * d2
     ia, nn_ab = ia[passed], nn_ab[passed]
     r = d1[passed] / np.maximum(d2[passed], tiny)
-    if mutual:
-        order = np.argsort(cols, kind="stable")  # by column, rows ascending within
+    if mutual:  # b -> a only for the columns some passing row chose
+        target = np.zeros(len(b), bool)
+        target[nn_ab] = True
+        sel = np.flatnonzero(target[cols])
+        order = sel[np.argsort(cols[sel], kind="stable")]
+        if len(order) == 0:
+            return Matches.empty()
         jb, nn_ba, t1, t2 = _two_best_grouped(cols[order], rows[order], sims[order])
         e1, e2 = _distances(t1), _distances(t2)
         back_nn = np.full(len(b), -1, np.int64)
