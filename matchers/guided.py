@@ -205,9 +205,9 @@ _MARGIN_PX = 1.0
 #: a block of rows whose candidates exceed this fraction of its pairs is tested densely (two
 #: matrix products of widths 3 and 6 over the block); one whose in-band pairs exceed
 #: :data:`_PRODUCT_FRACTION` gets its similarities from one matrix product (a gathered dot
-#: product costs about as much as 20 entries of a matrix product, on one loaded core)
+#: product costs about as much as 250 entries of a matrix product: random rows miss the cache)
 _DENSE_FRACTION = 0.15
-_PRODUCT_FRACTION = 0.05
+_PRODUCT_FRACTION = 0.002
 
 
 def _ring_candidates(lines, bound, uv_b, max_pairs: int):
@@ -280,6 +280,8 @@ def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc
     corners = np.array([[lo[0], lo[1], 1.0], [lo[0], hi[1], 1.0], [hi[0], lo[1], 1.0], [hi[0], hi[1], 1.0]])
     bound = settings.floor_px + np.sqrt(np.maximum(c6 @ _quadratic_terms(corners).T, 0.0).max(axis=1)) + _MARGIN_PX
     bound[undefined] = np.inf
+    lines32, c32 = lines.astype(np.float32), c6.astype(np.float32)
+    xb32, q32 = np.ascontiguousarray(xb.T, np.float32), np.ascontiguousarray(q.T, np.float32)
     rows, cols, sims = [], [], []
     for start in range(0, len(uv_a), settings.block_rows):
         block = slice(start, min(start + settings.block_rows, len(uv_a)))
@@ -287,9 +289,12 @@ def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc
         found = None
         if not undefined[block].all():
             found = _ring_candidates(lines[block], bound[block], uv_b, int(_DENSE_FRACTION * n_pairs))
-        if found is None:  # a wide band: test every pair of the block
-            d = np.abs(lines[block] @ xb.T)
-            inside = d <= settings.floor_px + np.sqrt(np.maximum(c6[block] @ q.T, 0.0))
+        if found is None:  # a wide band: test every pair of the block, in float32
+            d = np.abs(lines32[block] @ xb32)
+            d -= np.float32(settings.floor_px)  # |d| <= floor + k sigma <=> max(|d| - floor, 0)^2 <= k^2 sigma^2
+            np.maximum(d, 0, out=d)
+            d *= d
+            inside = d <= c32[block] @ q32
             inside[undefined[block]] = True
             r, c = np.divmod(np.flatnonzero(inside), len(uv_b))
         else:
