@@ -23,12 +23,14 @@ normalised epipolar line ``l_i = t x R x_i`` moves by ``A_i xi`` with
 line's normal). The band therefore widens along the line away from where the pose error
 pivots it; without a covariance (an exact pose) it is ``floor_px`` wide.
 
-All epipolar lines in ``b`` pass through the epipole, so the candidates of a line are found
-without visiting every pair: ``b``'s keypoints are binned in rings around the epipole and
-sorted by angle; a line's candidates in a ring lie in an angular window found by binary
-search (:func:`_ring_candidates`, a superset of the band). Only those candidates are tested
-exactly against the band, and descriptor similarities are computed only for the in-band
-pairs. No Python loop runs per keypoint (only per ring and per block of rows).
+All epipolar lines in ``b`` pass through the epipole, so the band is found without testing
+every pair: ``b``'s keypoints are binned in rings around the epipole and sorted by angle,
+``a``'s by the angle of their line; a block of neighbouring lines then has all its
+candidates in each ring in one angular window (found by binary search), compared in one small
+matrix product and tested exactly against the band (:func:`band_pairs`). The products run on
+one BLAS thread (small products only wait on each other's threads). No Python loop runs per
+keypoint (only per ring and block of lines). The similarities are float32 dot products, so a
+near-tie may resolve differently from :func:`matchers.sift.ratio_match`'s exact re-ranking.
 
 A pose without translation has no epipolar geometry (every line degenerates): such pairs are
 matched exhaustively (:func:`matchers.sift.ratio_match`), as are keypoints whose line is
@@ -42,6 +44,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
@@ -66,14 +69,15 @@ class GuidedSettings:
             noise and what the triangulation's Sampson test (1.5 px) still accepts.
         sigmas: the band widens by this many 1-sigma displacements of the epipolar line
             caused by the stated pose covariance.
-        block_rows: keypoints of ``a`` whose candidates are handled at once (memory about
-            ``100 * block_rows * len(b) * band fraction`` bytes).
+        block_rows: keypoints of ``a`` (sorted by the direction of their epipolar line) whose
+            candidates are compared in one matrix product per ring around the epipole; small
+            blocks waste fewer products on pairs outside the band, large ones cost fewer calls.
     """
 
     enabled: bool = False
     floor_px: float = 3.0
     sigmas: float = 3.0
-    block_rows: int = 1024
+    block_rows: int = 64
 
     def __post_init__(self):
         if not isinstance(self.enabled, bool):
@@ -202,71 +206,56 @@ _FIRST_RING_PX = 16.0
 #: ``extent^2 / _FAR_EPIPOLE_PX`` pixels, covered by :data:`_MARGIN_PX`
 _FAR_EPIPOLE_PX = 1e8
 _MARGIN_PX = 1.0
-#: a block of rows whose candidates exceed this fraction of its pairs is tested densely (two
-#: matrix products of widths 3 and 6 over the block); one whose in-band pairs exceed
-#: :data:`_PRODUCT_FRACTION` gets its similarities from one matrix product (a gathered dot
-#: product costs about as much as 250 entries of a matrix product: random rows miss the cache)
-_DENSE_FRACTION = 0.15
-_PRODUCT_FRACTION = 0.002
 
 
-def _ring_candidates(lines, bound, uv_b, max_pairs: int):
-    """``(rows, cols)``: every pair whose keypoint ``j`` may lie within ``bound[i]`` pixels of
-    line ``i`` (a superset of the band), grouped by row; None when there are more than
-    ``max_pairs``.
-
-    All epipolar lines pass through the epipole ``e``: keypoint ``j`` at angle ``theta_j`` and
-    distance ``r_j`` from ``e`` is ``r_j |sin(theta_j - phi_i)|`` from the line of direction
-    ``phi_i``. Keypoints are binned in rings ``r in [R, 2R)`` and sorted by angle (mod pi) in
-    each; a line's candidates in a ring are those within ``asin(bound / R)`` of its direction:
-    a few binary searches per line, no pass over all pairs.
-    """
-    # the epipole: the common point of the lines (the null vector of their scatter matrix)
+def _epipole(lines, uv_b) -> np.ndarray:
+    """(2,) pixels: the common point of the lines (the null vector of their scatter matrix),
+    or a point :data:`_FAR_EPIPOLE_PX` away in its direction when it is farther."""
     defined = lines[np.any(lines, axis=1)]
     e_h = np.linalg.svd(defined.T @ defined)[2][-1]
     centre = 0.5 * (uv_b.min(axis=0) + uv_b.max(axis=0))
-    finite = abs(e_h[2]) > 0 and np.linalg.norm(e_h[:2] / e_h[2] - centre) < _FAR_EPIPOLE_PX
-    e = e_h[:2] / e_h[2] if finite else centre + _FAR_EPIPOLE_PX * e_h[:2] / np.linalg.norm(e_h[:2])
+    if abs(e_h[2]) > 0 and np.linalg.norm(e_h[:2] / e_h[2] - centre) < _FAR_EPIPOLE_PX:
+        return e_h[:2] / e_h[2]
+    return centre + _FAR_EPIPOLE_PX * e_h[:2] / np.linalg.norm(e_h[:2])
+
+
+def _rings(uv_b, e):
+    """``[(radius, order)]``: ``b``'s keypoints binned by distance from the epipole ``e`` in rings
+    ``[R, 2R)`` (radius 0: the keypoints nearer than :data:`_FIRST_RING_PX`), each ring's
+    indices sorted by angle mod pi, with their angles."""
     v = uv_b - e
     r = np.hypot(v[:, 0], v[:, 1])
     theta = np.mod(np.arctan2(v[:, 1], v[:, 0]), np.pi)
-    phi = np.mod(np.arctan2(-lines[:, 0], lines[:, 1]), np.pi)  # direction (b, -a) of a x + b y + c = 0
     ring = np.floor(np.log2(np.maximum(r, _FIRST_RING_PX) / _FIRST_RING_PX)).astype(np.int64)
     ring[r < _FIRST_RING_PX] = -1
-    rings = np.unique(ring)
-    starts, stops, offsets, pools = [], [], 0, []
-    for k in rings:  # a handful of rings (log2 of the image's extent)
+    out = []
+    for k in np.unique(ring):  # a handful of rings (log2 of the image's extent)
         members = np.flatnonzero(ring == k)
         order = members[np.argsort(theta[members], kind="stable")]
-        t = theta[order]
-        pools.append(np.concatenate([order, order, order]))
-        n = len(order)
-        if k < 0:
-            lo, hi = np.full(len(lines), n), np.full(len(lines), 2 * n)
-        else:
-            radius = _FIRST_RING_PX * 2.0**k
-            half = np.arcsin(np.minimum(bound / radius, 1.0))
-            whole = bound >= radius
-            t3 = np.concatenate([t - np.pi, t, t + np.pi])
-            lo = np.searchsorted(t3, phi - half, side="left")
-            hi = np.searchsorted(t3, phi + half, side="right")
-            lo[whole], hi[whole] = n, 2 * n
-        starts.append(lo + offsets)
-        stops.append(hi + offsets)
-        offsets += 3 * n
-    pool = np.concatenate(pools)
-    lo, hi = np.column_stack(starts).ravel(), np.column_stack(stops).ravel()  # (rows x rings), row-major
-    counts = hi - lo
-    total = int(counts.sum())
-    if total > max_pairs:
-        return None
-    rows = np.repeat(np.repeat(np.arange(len(lines)), len(rings)), counts)
-    pos = np.arange(total) - np.repeat(np.cumsum(counts) - counts - lo, counts)
-    return rows, pool[pos]
+        out.append((0.0 if k < 0 else _FIRST_RING_PX * 2.0**k, order, theta[order]))
+    return out
 
 
-def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
-    """The in-band pairs ``(rows, cols, similarities)``, grouped by row."""
+def band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
+    """The in-band pairs and their descriptor similarities.
+
+    Args:
+        prior, settings: the band. uv_a: (Na, 2), uv_b: (Nb, 2) ideal pixels.
+        desc_a: (Na, D), desc_b: (Nb, D) float32 unit descriptors.
+
+    Returns:
+        ``(rows, cols, sims)``: (P,) int64 indices into ``a`` (ascending) and ``b`` of the
+        pairs inside the band, and their float32 similarities ``desc_a[i] . desc_b[j]``.
+
+    All epipolar lines pass through the epipole ``e``: keypoint ``j`` at angle ``theta_j`` and
+    distance ``r_j`` from ``e`` is ``r_j |sin(theta_j - phi_i)|`` from the line of direction
+    ``phi_i``. ``b``'s keypoints are binned in rings ``r in [R, 2R)`` around ``e`` and sorted by
+    angle; ``a``'s keypoints are sorted by ``phi``. A block of ``block_rows`` consecutive
+    lines then has its candidates in each ring in one contiguous angular window (those within
+    ``asin(bound / R)`` of some line of the block: a superset of the band): one small matrix
+    product per block and ring gives their similarities, and the exact band test keeps the
+    pairs inside.
+    """
     lines, cov = epipolar_lines(prior, uv_a)
     undefined = ~lines.any(axis=1)
     k2 = settings.sigmas**2
@@ -274,45 +263,68 @@ def _band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc
     c6 = k2 * np.column_stack([cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2], cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]])
     xb = np.column_stack([uv_b, np.ones(len(uv_b))])
     q = _quadratic_terms(xb)
-    # each row's widest band over b's keypoints: x^T C x is convex, so its largest value over
+    # each line's widest band over b's keypoints: x^T C x is convex, so its largest value over
     # their bounding box is at a corner
     lo, hi = uv_b.min(axis=0), uv_b.max(axis=0)
     corners = np.array([[lo[0], lo[1], 1.0], [lo[0], hi[1], 1.0], [hi[0], lo[1], 1.0], [hi[0], hi[1], 1.0]])
     bound = settings.floor_px + np.sqrt(np.maximum(c6 @ _quadratic_terms(corners).T, 0.0).max(axis=1)) + _MARGIN_PX
     bound[undefined] = np.inf
-    lines32, c32 = lines.astype(np.float32), c6.astype(np.float32)
-    xb32, q32 = np.ascontiguousarray(xb.T, np.float32), np.ascontiguousarray(q.T, np.float32)
+    e = _epipole(lines, uv_b) if not undefined.all() else np.zeros(2)
+    # each line's angle as seen from the epipole: towards its point nearest to the image centre
+    # (for a finite epipole the line's own direction; for a far one the direction from the
+    # epipole placed far away, which differs from the parallel line by < _MARGIN_PX in the image)
+    centre = 0.5 * (uv_b.min(axis=0) + uv_b.max(axis=0))
+    foot = centre - (lines[:, :2] @ centre + lines[:, 2])[:, None] * lines[:, :2]
+    v = foot - e
+    at_e = np.hypot(v[:, 0], v[:, 1]) < 1e-6
+    v[at_e] = np.column_stack([lines[at_e, 1], -lines[at_e, 0]])  # direction (b, -a) of a x + b y + c = 0
+    phi = np.mod(np.arctan2(v[:, 1], v[:, 0]), np.pi)
+    by_phi = np.argsort(phi, kind="stable")
+    a_sorted = desc_a[by_phi]
+    l32, c32 = lines[by_phi].astype(np.float32), c6[by_phi].astype(np.float32)
+    floor = np.float32(settings.floor_px)
     rows, cols, sims = [], [], []
-    for start in range(0, len(uv_a), settings.block_rows):
-        block = slice(start, min(start + settings.block_rows, len(uv_a)))
-        n_pairs = (block.stop - start) * len(uv_b)
-        found = None
-        if not undefined[block].all():
-            found = _ring_candidates(lines[block], bound[block], uv_b, int(_DENSE_FRACTION * n_pairs))
-        if found is None:  # a wide band: test every pair of the block, in float32
-            d = np.abs(lines32[block] @ xb32)
-            d -= np.float32(settings.floor_px)  # |d| <= floor + k sigma <=> max(|d| - floor, 0)^2 <= k^2 sigma^2
+    for radius, order, t in _rings(uv_b, e):
+        n = len(order)
+        pool = np.concatenate([order, order, order])  # angles t - pi, t, t + pi: windows never wrap
+        t3 = np.concatenate([t - np.pi, t, t + np.pi])
+        b3 = desc_b[pool]
+        x3 = np.ascontiguousarray(xb[pool].T, np.float32)
+        q3 = np.ascontiguousarray(q[pool].T, np.float32)
+        b_phi, b_bound = phi[by_phi], bound[by_phi]
+        half = np.arcsin(np.minimum(b_bound / radius, 1.0)) if radius > 0 else np.full(len(phi), np.pi)
+        lo_i = np.searchsorted(t3, b_phi - half, side="left")
+        hi_i = np.searchsorted(t3, b_phi + half, side="right")
+        for start in range(0, len(phi), settings.block_rows):
+            blk = slice(start, min(start + settings.block_rows, len(phi)))
+            w0, w1 = int(lo_i[blk].min()), int(hi_i[blk].max())
+            if w1 - w0 >= n:
+                w0, w1 = n, 2 * n  # the whole ring, each keypoint once
+            if w1 <= w0:
+                continue
+            d = np.abs(l32[blk] @ x3[:, w0:w1])
+            d -= floor  # |d| <= floor + k sigma  <=>  max(|d| - floor, 0)^2 <= k^2 sigma^2
             np.maximum(d, 0, out=d)
             d *= d
-            inside = d <= c32[block] @ q32
-            inside[undefined[block]] = True
-            r, c = np.divmod(np.flatnonzero(inside), len(uv_b))
-        else:
-            r, c = found
-            d = np.abs(np.einsum("ij,ij->i", lines[start + r], xb[c]))
-            half = settings.floor_px + np.sqrt(np.maximum(np.einsum("ij,ij->i", c6[start + r], q[c]), 0.0))
-            inside = (d <= half) | undefined[start + r]
-            r, c = r[inside], c[inside]
-        if len(r) > _PRODUCT_FRACTION * n_pairs:
-            s = (desc_a[block] @ desc_b.T)[r, c]
-        else:
-            s = np.einsum("ij,ij->i", desc_a[start + r], desc_b[c])
-        rows.append(r + start)
-        cols.append(c)
-        sims.append(s.astype(np.float32, copy=False))
+            inside = d <= c32[blk] @ q3[:, w0:w1]
+            inside[undefined[by_phi[blk]]] = True
+            r, c = np.nonzero(inside)
+            if len(r) == 0:
+                continue
+            rows.append(by_phi[start + r])
+            cols.append(pool[w0 + c])
+            sims.append((a_sorted[blk] @ b3[w0:w1].T)[r, c])
     if not rows:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(sims)
+    rows, cols, sims = np.concatenate(rows), np.concatenate(cols), np.concatenate(sims)
+    order = _stable_order(rows, len(uv_a))
+    return rows[order], cols[order], sims[order].astype(np.float32, copy=False)
+
+
+def _stable_order(keys, n: int) -> np.ndarray:
+    """``argsort(keys, kind="stable")`` of integer keys in ``[0, n)``; as int16 where they fit,
+    which numpy sorts by radix in linear time (a tenth of a comparison sort of 2 million keys)."""
+    return np.argsort(keys.astype(np.int16) if n <= np.iinfo(np.int16).max else keys, kind="stable")
 
 
 def _two_best_grouped(key, other, sims):
@@ -360,7 +372,8 @@ def guided_ratio_match(desc_a, desc_b, uv_a, uv_b, prior: EpipolarPrior, setting
     uv_b = check_array("uv_b", uv_b, (len(b), 2), finite=True)
     if len(a) < 2 or len(b) < 2:
         return Matches.empty()
-    rows, cols, sims = _band_pairs(prior, uv_a, uv_b, settings, a, b)
+    with threadpool_limits(1, user_api="blas"):  # many small products: threads only wait on each other
+        rows, cols, sims = band_pairs(prior, uv_a, uv_b, settings, a, b)
     if len(rows) == 0:
         return Matches.empty()
     ia, nn_ab, s1, s2 = _two_best_grouped(rows, cols, sims)
@@ -373,7 +386,7 @@ def guided_ratio_match(desc_a, desc_b, uv_a, uv_b, prior: EpipolarPrior, setting
         target = np.zeros(len(b), bool)
         target[nn_ab] = True
         sel = np.flatnonzero(target[cols])
-        order = sel[np.argsort(cols[sel], kind="stable")]
+        order = sel[_stable_order(cols[sel], len(b))]
         if len(order) == 0:
             return Matches.empty()
         jb, nn_ba, t1, t2 = _two_best_grouped(cols[order], rows[order], sims[order])

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from matchers import EpipolarPrior, Features, GuidedSettings, PoseGuidedMatcher, SiftMatcher, SiftSettings
-from matchers.guided import band_half_widths, epipolar_lines, guided_ratio_match
+from matchers.guided import band_pairs, band_half_widths, epipolar_lines, guided_ratio_match
 from matchers.sift import ratio_match
 from vio_core.camera import Camera
 from vio_core.errors import SettingsError, ShapeError
@@ -183,3 +183,24 @@ def test_shapes_and_settings_are_checked():
                 {"enabled": "yes"}):
         with pytest.raises(SettingsError):
             GuidedSettings(**bad)
+
+
+@pytest.mark.parametrize("t", [[0.0, 0.0, 1.0],  # forward: the epipole inside the image
+                               [2.0, 0.0, 0.0],  # sideways: the epipole at infinity
+                               [-0.4, 0.02, 0.1],  # the epipole outside the image, finite
+                               [0.3, -0.2, -1.0]])  # backward
+@pytest.mark.parametrize("covariance", [None, "cov"])
+def test_the_band_search_finds_exactly_the_dense_band(t, covariance):
+    """The ring/angle search (blocks of lines sorted by angle) returns every pair of the dense
+    band test, and nothing else, whatever the epipole's position."""
+    uv_a, uv_b, da, db = _scene(300, seed=2)
+    T = _pose([0.01, -0.02, 0.005], t)
+    cov = None if covariance is None else _cov(0.05, 0.01)
+    prior = EpipolarPrior(CAM, CAM, T, cov)
+    s = GuidedSettings(block_rows=16)
+    distance, half = band_half_widths(prior, uv_a, uv_b, s)
+    want = set(zip(*np.nonzero(distance <= half)))
+    rows, cols, sims = band_pairs(prior, uv_a, uv_b, s, da, db)
+    assert set(zip(rows.tolist(), cols.tolist())) == want and len(rows) == len(want)
+    assert np.all(np.diff(rows) >= 0)  # grouped by row
+    np.testing.assert_allclose(sims, np.einsum("ij,ij->i", da[rows], db[cols]), atol=1e-5)
