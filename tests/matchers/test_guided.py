@@ -204,3 +204,37 @@ def test_the_band_search_finds_exactly_the_dense_band(t, covariance):
     assert set(zip(rows.tolist(), cols.tolist())) == want and len(rows) == len(want)
     assert np.all(np.diff(rows) >= 0)  # grouped by row
     np.testing.assert_allclose(sims, np.einsum("ij,ij->i", da[rows], db[cols]), atol=1e-5)
+
+
+def _reference_guided(da, db, uv_a, uv_b, prior, settings, ratio=0.8):
+    """Guided matching written plainly: the dense band mask over the full similarity matrix."""
+    distance, half = band_half_widths(prior, uv_a, uv_b, settings)
+    sims = np.where(distance <= half, da.astype(np.float64) @ db.T.astype(np.float64), -np.inf)
+    matches = []
+    for i in range(len(da)):
+        row = sims[i]
+        if not np.isfinite(row).any():
+            continue
+        j = int(np.argmax(row))
+        s2 = np.max(np.delete(row, j)) if len(row) > 1 else -np.inf
+        col = sims[:, j]
+        i_back = int(np.argmax(col))
+        t2 = np.max(np.delete(col, i_back))
+        d = lambda s: np.sqrt(max(2 - 2 * (0.0 if not np.isfinite(s) else s), 0.0))  # noqa: E731
+        if i_back == i and d(row[j]) < ratio * d(s2) and d(col[i]) < ratio * d(t2):
+            matches.append((i, j))
+    return matches
+
+
+@pytest.mark.parametrize("t", [[0.0, 0.0, 1.0], [-0.4, 0.02, 0.1]])
+@pytest.mark.parametrize("floor_px", [3.0, 40.0])
+def test_guided_matches_equal_a_plain_dense_reference(t, floor_px):
+    """Matches equal those of the band mask applied to the full similarity matrix (narrow and
+    wide bands; repeated descriptors make the ratio test matter)."""
+    uv_a, uv_b, da, db = _scene(200, seed=4)
+    rng = np.random.default_rng(6)
+    db[::7] = _unit(db[::7][rng.permutation(len(db[::7]))] + 0.05 * rng.random((len(db[::7]), 128)))
+    prior = EpipolarPrior(CAM, CAM, _pose([0.01, -0.02, 0.005], t), _cov(0.05, 0.01))
+    s = GuidedSettings(floor_px=floor_px, block_rows=16)
+    m = guided_ratio_match(da, db, uv_a, uv_b, prior, s)
+    assert list(zip(m.idx_a.tolist(), m.idx_b.tolist())) == _reference_guided(da, db, uv_a, uv_b, prior, s)
