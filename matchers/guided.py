@@ -26,11 +26,14 @@ pivots it; without a covariance (an exact pose) it is ``floor_px`` wide.
 All epipolar lines in ``b`` pass through the epipole, so the band is found without testing
 every pair: ``b``'s keypoints are binned in rings around the epipole and sorted by angle,
 ``a``'s by the angle of their line; a block of neighbouring lines then has all its
-candidates in each ring in one angular window (found by binary search), compared in one small
-matrix product and tested exactly against the band (:func:`band_pairs`). The products run on
-one BLAS thread (small products only wait on each other's threads). No Python loop runs per
-keypoint (only per ring and block of lines). The similarities are float32 dot products, so a
-near-tie may resolve differently from :func:`matchers.sift.ratio_match`'s exact re-ranking.
+candidates in each ring in one angular window (found by binary search; lines whose window
+covers a quarter of the ring form blocks of their own), compared in one small matrix
+product and tested exactly against the band. Each block's similarities are reduced where
+they are computed to the best and second best per keypoint of ``a`` and of ``b``
+(:func:`band_two_best`); the pairs are never listed. The products run on one BLAS thread
+(small products only wait on each other's threads). No Python loop runs per keypoint (only
+per ring and block of lines). The similarities are float32 dot products, so a near-tie may
+resolve differently from :func:`matchers.sift.ratio_match`'s exact re-ranking.
 
 A pose without translation has no epipolar geometry (every line degenerates): such pairs are
 matched exhaustively (:func:`matchers.sift.ratio_match`), as are keypoints whose line is
@@ -77,7 +80,7 @@ class GuidedSettings:
     enabled: bool = False
     floor_px: float = 3.0
     sigmas: float = 3.0
-    block_rows: int = 64
+    block_rows: int = 256
 
     def __post_init__(self):
         if not isinstance(self.enabled, bool):
@@ -256,6 +259,22 @@ def band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_
     product per block and ring gives their similarities, and the exact band test keeps the
     pairs inside.
     """
+    rows, cols, sims = [], [], []
+    for r_idx, c_idx, inside, s in _band_blocks(prior, uv_a, uv_b, settings, desc_a, desc_b):
+        r, c = np.nonzero(inside)
+        rows.append(r_idx[r])
+        cols.append(c_idx[c])
+        sims.append(s[r, c])
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    rows, cols, sims = np.concatenate(rows), np.concatenate(cols), np.concatenate(sims)
+    order = _stable_order(rows, len(uv_a))
+    return rows[order], cols[order], sims[order].astype(np.float32, copy=False)
+
+
+def _band_blocks(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
+    """Yields ``(rows (m,), cols (w,), inside (m, w) bool, sims (m, w) float32)`` per block of
+    lines and ring: every in-band pair appears in exactly one block (:func:`band_pairs`)."""
     lines, cov = epipolar_lines(prior, uv_a)
     undefined = ~lines.any(axis=1)
     k2 = settings.sigmas**2
@@ -263,12 +282,6 @@ def band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_
     c6 = k2 * np.column_stack([cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2], cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]])
     xb = np.column_stack([uv_b, np.ones(len(uv_b))])
     q = _quadratic_terms(xb)
-    # each line's widest band over b's keypoints: x^T C x is convex, so its largest value over
-    # their bounding box is at a corner
-    lo, hi = uv_b.min(axis=0), uv_b.max(axis=0)
-    corners = np.array([[lo[0], lo[1], 1.0], [lo[0], hi[1], 1.0], [hi[0], lo[1], 1.0], [hi[0], hi[1], 1.0]])
-    bound = settings.floor_px + np.sqrt(np.maximum(c6 @ _quadratic_terms(corners).T, 0.0).max(axis=1)) + _MARGIN_PX
-    bound[undefined] = np.inf
     e = _epipole(lines, uv_b) if not undefined.all() else np.zeros(2)
     # each line's angle as seen from the epipole: towards its point nearest to the image centre
     # (for a finite epipole the line's own direction; for a far one the direction from the
@@ -281,9 +294,9 @@ def band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_
     phi = np.mod(np.arctan2(v[:, 1], v[:, 0]), np.pi)
     by_phi = np.argsort(phi, kind="stable")
     a_sorted = desc_a[by_phi]
-    l32, c32 = lines[by_phi].astype(np.float32), c6[by_phi].astype(np.float32)
+    c6_sorted = c6[by_phi]
+    l32, c32 = lines[by_phi].astype(np.float32), c6_sorted.astype(np.float32)
     floor = np.float32(settings.floor_px)
-    rows, cols, sims = [], [], []
     for radius, order, t in _rings(uv_b, e):
         n = len(order)
         pool = np.concatenate([order, order, order])  # angles t - pi, t, t + pi: windows never wrap
@@ -291,34 +304,92 @@ def band_pairs(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_
         b3 = desc_b[pool]
         x3 = np.ascontiguousarray(xb[pool].T, np.float32)
         q3 = np.ascontiguousarray(q[pool].T, np.float32)
-        b_phi, b_bound = phi[by_phi], bound[by_phi]
+        # each line's widest band over the ring's keypoints: x^T C x is convex, so its largest
+        # value over their bounding box is at a corner
+        lo, hi = uv_b[order].min(axis=0), uv_b[order].max(axis=0)
+        corners = np.array([[lo[0], lo[1], 1.0], [lo[0], hi[1], 1.0], [hi[0], lo[1], 1.0], [hi[0], hi[1], 1.0]])
+        b_bound = settings.floor_px + _MARGIN_PX + np.sqrt(np.maximum(c6_sorted @ _quadratic_terms(corners).T,
+                                                                      0.0).max(axis=1))
+        b_bound[undefined[by_phi]] = np.inf
+        b_phi = phi[by_phi]
         half = np.arcsin(np.minimum(b_bound / radius, 1.0)) if radius > 0 else np.full(len(phi), np.pi)
         lo_i = np.searchsorted(t3, b_phi - half, side="left")
         hi_i = np.searchsorted(t3, b_phi + half, side="right")
-        for start in range(0, len(phi), settings.block_rows):
-            blk = slice(start, min(start + settings.block_rows, len(phi)))
-            w0, w1 = int(lo_i[blk].min()), int(hi_i[blk].max())
-            if w1 - w0 >= n:
-                w0, w1 = n, 2 * n  # the whole ring, each keypoint once
-            if w1 <= w0:
-                continue
-            d = np.abs(l32[blk] @ x3[:, w0:w1])
-            d -= floor  # |d| <= floor + k sigma  <=>  max(|d| - floor, 0)^2 <= k^2 sigma^2
-            np.maximum(d, 0, out=d)
-            d *= d
-            inside = d <= c32[blk] @ q3[:, w0:w1]
-            inside[undefined[by_phi[blk]]] = True
-            r, c = np.nonzero(inside)
-            if len(r) == 0:
-                continue
-            rows.append(by_phi[start + r])
-            cols.append(pool[w0 + c])
-            sims.append((a_sorted[blk] @ b3[w0:w1].T)[r, c])
-    if not rows:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
-    rows, cols, sims = np.concatenate(rows), np.concatenate(cols), np.concatenate(sims)
-    order = _stable_order(rows, len(uv_a))
-    return rows[order], cols[order], sims[order].astype(np.float32, copy=False)
+        # lines whose window covers a quarter of the ring compare with all of it, in blocks
+        # of their own: one wide line would otherwise widen its neighbours' block
+        wide = hi_i - lo_i >= max(n // 4, 1)
+        for group in (np.flatnonzero(~wide), np.flatnonzero(wide)):
+            for start in range(0, len(group), settings.block_rows):
+                blk = group[start:start + settings.block_rows]
+                w0, w1 = int(lo_i[blk].min()), int(hi_i[blk].max())
+                if w1 - w0 >= n:
+                    w0, w1 = n, 2 * n  # the whole ring, each keypoint once
+                if w1 <= w0:
+                    continue
+                d = np.abs(l32[blk] @ x3[:, w0:w1])
+                d -= floor  # |d| <= floor + k sigma  <=>  max(|d| - floor, 0)^2 <= k^2 sigma^2
+                np.maximum(d, 0, out=d)
+                d *= d
+                inside = d <= c32[blk] @ q3[:, w0:w1]
+                inside[undefined[by_phi[blk]]] = True
+                if inside.any():
+                    yield by_phi[blk], pool[w0:w1], inside, a_sorted[blk] @ b3[w0:w1].T
+
+
+class _TwoBest:
+    """Running best and second-best similarity of each of ``n`` keypoints, merged block by
+    block (each keypoint's candidates in one block are distinct from those in the others)."""
+
+    def __init__(self, n: int):
+        self.index = np.full(n, -1, np.int64)
+        self.best = np.full(n, -np.inf, np.float32)
+        self.second = np.full(n, -np.inf, np.float32)
+
+    def merge(self, at, index, best, second) -> None:
+        """Merge one block's ``(index, best, second)`` of the keypoints ``at`` (distinct)."""
+        old_i, old_b, old_s = self.index[at], self.best[at], self.second[at]
+        better = (best > old_b) | ((best == old_b) & (index < old_i) & np.isfinite(best))
+        self.second[at] = np.where(better, np.maximum(old_b, second), np.maximum(old_s, best))
+        self.best[at] = np.where(better, best, old_b)
+        self.index[at] = np.where(better, index, old_i)
+
+
+def _two_best_of(s: np.ndarray, axis: int):
+    """``(argmax, best, second)`` along ``axis`` of ``s`` (left as it was)."""
+    idx = np.argmax(s, axis=axis)
+    other = np.arange(s.shape[1 - axis])
+    at = (other, idx) if axis == 1 else (idx, other)
+    best = s[at]
+    s[at] = -np.inf
+    second = s.max(axis=axis)
+    s[at] = best
+    return idx, best, second
+
+
+def band_two_best(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings, desc_a, desc_b):
+    """For each keypoint of ``a`` its most similar in-band keypoint of ``b`` and the best and
+    second-best similarities, and the same for each keypoint of ``b`` (arguments as
+    :func:`band_pairs`). The pairs are never listed: each block's similarities are reduced
+    where they are computed.
+
+    Returns:
+        ``(nn_ab (Na,), s_ab (Na, 2), nn_ba (Nb,), s_ba (Nb, 2))``: int64 indices (-1: no
+        in-band candidate) and float32 similarities (-inf where absent). Ties: the lower index.
+    """
+    ab, ba = _TwoBest(len(uv_a)), _TwoBest(len(uv_b))
+    for rows, cols, inside, s in _band_blocks(prior, uv_a, uv_b, settings, desc_a, desc_b):
+        s[~inside] = -np.inf
+        if s.shape[1] > 1:
+            j, best, second = _two_best_of(s, 1)
+        else:
+            j, best, second = np.zeros(len(s), np.int64), s[:, 0], np.full(len(s), -np.inf, np.float32)
+        ab.merge(rows, cols[j], best, second)
+        if s.shape[0] > 1:
+            i, best, second = _two_best_of(s, 0)
+        else:
+            i, best, second = np.zeros(s.shape[1], np.int64), s[0], np.full(s.shape[1], -np.inf, np.float32)
+        ba.merge(cols, rows[i], best, second)
+    return ab.index, np.column_stack([ab.best, ab.second]), ba.index, np.column_stack([ba.best, ba.second])
 
 
 def _stable_order(keys, n: int) -> np.ndarray:
@@ -327,22 +398,10 @@ def _stable_order(keys, n: int) -> np.ndarray:
     return np.argsort(keys.astype(np.int16) if n <= np.iinfo(np.int16).max else keys, kind="stable")
 
 
-def _two_best_grouped(key, other, sims):
-    """Per group of equal ``key`` (contiguous): the key, the ``other`` of the best similarity
-    (ties: the lowest ``other``), the best and the second best similarity
-    (:data:`ABSENT_SECOND_SIMILARITY` for a group of one)."""
-    new = np.r_[True, key[1:] != key[:-1]]
-    first = np.flatnonzero(new)
-    group = np.cumsum(new) - 1
-    best = np.maximum.reduceat(sims, first)
-    best_other = np.minimum.reduceat(np.where(sims == best[group], other, np.iinfo(np.int64).max), first)
-    rest = np.where(other == best_other[group], -np.inf, sims)
-    second = np.maximum.reduceat(rest, first)
-    second[~np.isfinite(second)] = ABSENT_SECOND_SIMILARITY
-    return key[first], best_other, best, second
-
-
 def _distances(s: np.ndarray) -> np.ndarray:
+    """Euclidean distances of unit descriptors from similarities; an absent one (-inf) counts
+    as :data:`ABSENT_SECOND_SIMILARITY`."""
+    s = np.where(np.isfinite(s), s, np.float32(ABSENT_SECOND_SIMILARITY))
     return np.sqrt(np.maximum(2.0 - 2.0 * s, 0.0))
 
 
@@ -373,30 +432,16 @@ def guided_ratio_match(desc_a, desc_b, uv_a, uv_b, prior: EpipolarPrior, setting
     if len(a) < 2 or len(b) < 2:
         return Matches.empty()
     with threadpool_limits(1, user_api="blas"):  # many small products: threads only wait on each other
-        rows, cols, sims = band_pairs(prior, uv_a, uv_b, settings, a, b)
-    if len(rows) == 0:
-        return Matches.empty()
-    ia, nn_ab, s1, s2 = _two_best_grouped(rows, cols, sims)
-    d1, d2 = _distances(s1), _distances(s2)
+        nn_ab, s_ab, nn_ba, s_ba = band_two_best(prior, uv_a, uv_b, settings, a, b)
+    ia = np.flatnonzero(nn_ab >= 0)
+    d1, d2 = _distances(s_ab[ia, 0]), _distances(s_ab[ia, 1])
     tiny = np.float32(1e-12)
     passed = d1 < ratio * d2
-    ia, nn_ab = ia[passed], nn_ab[passed]
+    ia, nn = ia[passed], nn_ab[ia[passed]]
     r = d1[passed] / np.maximum(d2[passed], tiny)
-    if mutual:  # b -> a only for the columns some passing row chose
-        target = np.zeros(len(b), bool)
-        target[nn_ab] = True
-        sel = np.flatnonzero(target[cols])
-        order = sel[_stable_order(cols[sel], len(b))]
-        if len(order) == 0:
-            return Matches.empty()
-        jb, nn_ba, t1, t2 = _two_best_grouped(cols[order], rows[order], sims[order])
-        e1, e2 = _distances(t1), _distances(t2)
-        back_nn = np.full(len(b), -1, np.int64)
-        back_ok = e1 < ratio * e2
-        back_nn[jb[back_ok]] = nn_ba[back_ok]
-        back_r = np.zeros(len(b), np.float32)
-        back_r[jb] = e1 / np.maximum(e2, tiny)
-        keep = back_nn[nn_ab] == ia
-        ia, nn_ab, r = ia[keep], nn_ab[keep], np.maximum(r[keep], back_r[nn_ab[keep]])
+    if mutual:
+        e1, e2 = _distances(s_ba[nn, 0]), _distances(s_ba[nn, 1])
+        keep = (nn_ba[nn] == ia) & (e1 < ratio * e2)
+        ia, nn, r = ia[keep], nn[keep], np.maximum(r, e1 / np.maximum(e2, tiny))[keep]
     conf = np.clip(1.0 - r / ratio, 0.0, 1.0).astype(np.float32)
-    return Matches(ia.astype(np.int64), nn_ab.astype(np.int64), conf)
+    return Matches(ia.astype(np.int64), nn.astype(np.int64), conf)
