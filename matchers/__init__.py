@@ -7,6 +7,7 @@ module                 job
 =====================  ======================================================================
 ``base``               :class:`Features`, :class:`Matches`, the :class:`Matcher` protocol
 ``sift``               :class:`SiftMatcher`, :class:`SiftSettings`
+``guided``             pose-guided matching in the epipolar band (:class:`GuidedSettings`)
 ``nearest``            exact two nearest neighbours of descriptors (float32, bfloat16 screen)
 ``learned_settings``   :class:`LearnedMatcherSettings`
 ``learned``            :class:`LearnedMatcher` (kornia, bundled weights)
@@ -16,6 +17,7 @@ module                 job
 """
 
 from .base import Features, Matcher, Matches
+from .guided import EpipolarPrior, GuidedSettings, PoseGuidedMatcher, guided_ratio_match
 from .learned_settings import LearnedMatcherSettings
 from .registry import (
     MATCHER_PRESETS,
@@ -28,14 +30,18 @@ from .sift import SiftMatcher, SiftSettings
 
 __all__ = [
     "MATCHER_PRESETS",
+    "EpipolarPrior",
     "Features",
+    "GuidedSettings",
     "LearnedMatcherSettings",
     "Matcher",
     "MatcherSettings",
     "Matches",
+    "PoseGuidedMatcher",
     "SiftMatcher",
     "SiftSettings",
     "available_matchers",
     "create_matcher",
+    "guided_ratio_match",
     "uses_device",
 ]

@@ -35,6 +35,7 @@ from vio_core.checks import check_array, check_image
 from vio_core.errors import InputError, SettingsError, ShapeError
 
 from .base import Features, Matches
+from .guided import EpipolarPrior, GuidedSettings, guided_ratio_match
 from .nearest import NEAREST_BACKENDS, nearest_two_rows
 
 #: descriptor dimension of SIFT
@@ -65,6 +66,9 @@ class SiftSettings:
             re-ranking, 2.4 x faster at 4 000 descriptors where the CPU has bfloat16 units)
             or ``"auto"`` (default: bfloat16 where native and an image has >= 3 000
             descriptors, else float32). Every backend gives the same matches, bit for bit.
+        guided: pose-guided matching (:class:`~matchers.guided.GuidedSettings`; off by
+            default): where the caller knows the relative pose (:meth:`SiftMatcher.match_with_pose`),
+            only keypoints inside each epipolar band are compared.
     """
 
     max_features: int = 4000
@@ -77,6 +81,7 @@ class SiftSettings:
     root_sift: bool = True
     block_rows: int = 2048
     nearest_backend: str = "auto"
+    guided: GuidedSettings = GuidedSettings()
 
     def __post_init__(self):
         if self.max_features <= 0:
@@ -245,3 +250,21 @@ class SiftMatcher:
         s = self.settings
         return ratio_match(feats_a.descriptors, feats_b.descriptors, s.ratio, s.mutual, s.block_rows,
                            s.nearest_backend)
+
+    def match_with_pose(self, feats_a: Features, feats_b: Features, prior: EpipolarPrior) -> Matches:
+        """Matches when the relative pose is known (``prior``: ``a``'s camera in ``b``'s).
+
+        With ``settings.guided.enabled`` and a pose with a baseline: the ratio test and the
+        mutual check among the keypoints inside each epipolar band (:mod:`matchers.guided`);
+        otherwise exactly :meth:`match`.
+        """
+        g = self.settings.guided
+        if not g.enabled or not prior.has_baseline:
+            return self.match(feats_a, feats_b)
+        for nm, f in (("feats_a", feats_a), ("feats_b", feats_b)):
+            if len(f) and f.descriptors.shape[1] != SIFT_DIM:
+                raise ShapeError(f"{nm}: expected (N, {SIFT_DIM}) SIFT descriptors, got {f.descriptors.shape}")
+        uv_a = prior.camera_a.undistort_points(np.asarray(feats_a.keypoints, np.float64))
+        uv_b = prior.camera_b.undistort_points(np.asarray(feats_b.keypoints, np.float64))
+        s = self.settings
+        return guided_ratio_match(feats_a.descriptors, feats_b.descriptors, uv_a, uv_b, prior, g, s.ratio, s.mutual)

@@ -26,7 +26,7 @@ import sys
 import threading
 from dataclasses import replace
 
-from matchers import uses_device
+from matchers import SiftSettings, uses_device
 from vio_core.errors import CorruptImageError, MissingDependencyError, SettingsError, VioDepthError
 from vio_core.settings import override
 
@@ -68,6 +68,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, metavar="FILE", help="TOML settings file (see `vio-depth config --dump`)")
     g = p.add_argument_group("pipeline")
     g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: sift)")
+    g.add_argument("--guided-matching", action="store_true", default=None,
+                   help="match each keypoint only inside its epipolar band, widened by the pose's stated "
+                        "uncertainty (SIFT; [matcher.guided] in a config file; default off)")
     g.add_argument("--device", default=None, choices=["cpu", "cuda"],
                    help="device of a learned matcher or Depth Anything model (default: cuda when available)")
     g.add_argument("--poses", default=None, help="pose source: gt (sequence poses), imu (gtsam preintegration), "
@@ -197,6 +200,11 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
     s = pipeline
     if args.matcher is not None:
         s = replace(s, matcher=PRESET_FAMILIES["matcher"][args.matcher])
+    if args.guided_matching:
+        if not isinstance(s.matcher, SiftSettings):
+            raise SettingsError(f"--guided-matching needs a nearest-neighbour matcher (sift); the "
+                                f"{type(s.matcher).__name__} matcher matches by itself")
+        s = override(s, {"matcher": {"guided": {"enabled": True}}})
     if args.poses is not None:
         s = replace(s, poses=PRESET_FAMILIES["poses"][args.poses])
     if args.pairing is not None or args.min_rotation is not None or args.min_translation is not None:

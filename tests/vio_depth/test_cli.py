@@ -180,3 +180,12 @@ def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_
     assert offline["abs_rel"] < 0.1
     # frames that had depth in the forward pass are untouched
     assert [r["alpha"] for r in rows[False][1:]] == [r["alpha"] for r in rows[True][1:]]
+
+
+def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
+    assert main(["config", "--dump"]) == 0
+    assert "[matcher.guided]\nenabled = false" in capsys.readouterr().out  # off by default
+    assert main(["config", "--dump", "--guided-matching"]) == 0
+    assert "[matcher.guided]\nenabled = true" in capsys.readouterr().out
+    assert main(["config", "--dump", "--guided-matching", "--matcher", "disk+lightglue"]) == 1
+    assert "--guided-matching needs a nearest-neighbour matcher (sift)" in capsys.readouterr().err

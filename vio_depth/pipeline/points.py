@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from matchers import Features, Matcher
+from matchers import EpipolarPrior, Features, Matcher, PoseGuidedMatcher
 from triangulation import (
     ConsistencySettings,
     PoseInflation,
@@ -161,7 +161,7 @@ class TwoViewPoints:
         timings = {"matching": 0.0, "triangulation": 0.0}
         for kf, rel, motion, predicted in candidates:
             t = clock()
-            m = self.matcher.match(features, kf.features)
+            m = self._match(frame, features, kf, rel)
             timings["matching"] += clock() - t
             if len(m) < self.min_matches:
                 attempts.append(PairAttempt(kf.frame.index, motion, len(m), PairStatus.TOO_FEW_MATCHES,
@@ -218,6 +218,14 @@ class TwoViewPoints:
             outcome.scale_agreement = scale_agreement(merged[0], merged[1])
         self._depth_hint = float(np.median(outcome.depth))
         return outcome
+
+    def _match(self, frame: Frame, features: Features, kf: Keyframe, rel):
+        """The pair's matches; a matcher that can use the known pose gets it with its stated
+        (inflated) covariance (pose-guided matching, :mod:`matchers.guided`, where enabled)."""
+        if isinstance(self.matcher, PoseGuidedMatcher):
+            prior = EpipolarPrior(frame.camera, kf.frame.camera, rel.T_kf_cur, self._inflated(rel.covariance))
+            return self.matcher.match_with_pose(features, kf.features, prior)
+        return self.matcher.match(features, kf.features)
 
     def _maybe_add_keyframe(self, frame: Frame, features: Features, posed: bool = False) -> None:
         newest = self.buffer.newest
