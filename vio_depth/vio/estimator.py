@@ -174,7 +174,10 @@ class VioEstimator:
     def _health(self) -> str:
         """Why the newest keyframe's state is implausible ("" when it is fine)."""
         s = self.settings
-        st = self._newest_state()
+        try:
+            st = self._newest_state()
+        except NumericalError as error:  # an expected outcome here: the odometry is lost, not the run
+            return str(error)
         if not np.all(np.isfinite(st.T_w_i)):
             return "the estimate is not finite"
         speed = float(np.linalg.norm(st.velocity_w))

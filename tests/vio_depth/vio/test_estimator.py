@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vio_core.errors import InputError, SettingsError
+from vio_core.errors import InputError, NumericalError, SettingsError
 from vio_core.geometry import invert_transform
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error, mean_nees_bounds, nees
 from vio_depth.pipeline import POSE_PRESETS
@@ -192,3 +192,36 @@ def test_a_resting_camera_keeps_its_position_and_does_not_lose_tracking():
 def test_rest_settings_are_checked():
     with pytest.raises(SettingsError, match="max_anchor_motion"):
         replace(SETTINGS, rest=replace(SETTINGS.rest, max_anchor_motion=0.0))
+
+
+def test_a_state_that_is_not_finite_after_a_keyframe_loses_the_odometry_not_the_run():
+    """The window's newest state turning non-finite after an update (``ImuFactors.state_of``
+    raises :class:`NumericalError`) is an expected outcome of the hot loop: the frame gets
+    ``lost`` with the reason and the odometry re-initialises; before, the error escaped
+    ``_health`` and ended the whole run."""
+    scene = make_scene(duration_s=3.0, seed=1)
+    est = VioEstimator(scene.imu, IdMatcher(), SETTINGS)
+    broken = False
+    out = []
+    for k, f in enumerate(scene.frames):
+        v = est.process(f.index, f.timestamp, f.camera, scene.features[k])
+        out.append(v)
+        if broken and v.status == VioStatus.LOST:
+            break
+        if not broken and v.ok and sum(o.ok for o in out) == 5:
+            real_process, real_state_of = est.landmarks.process, est.factors.state_of
+
+            def process(*args, **kwargs):
+                nonlocal broken
+                result = real_process(*args, **kwargs)
+                broken = broken or result.keyframe
+                return result
+
+            def state_of(*args, **kwargs):
+                if broken:
+                    raise NumericalError("vio: the window's state of keyframe 0 is not finite")
+                return real_state_of(*args, **kwargs)
+
+            est.landmarks.process, est.factors.state_of = process, state_of
+    assert broken, "no keyframe after tracking started"
+    assert out[-1].status == VioStatus.LOST and "not finite" in out[-1].reason and not out[-1].ok
