@@ -44,7 +44,7 @@ from .plan import (
     resolve_entry,
 )
 from .results import Comparison, compare_evaluations
-from .runner import evaluate_variant, pipeline_settings, run_variant_task
+from .runner import evaluate_variant, pipeline_settings, run_variant_task, variant_pipeline
 from .scores import FrameScore, aggregate
 from .studies import run_study, run_study_task
 from .tasks import EXECUTORS, ExecutorSettings, Task, TaskCache, TaskError, execute_task, package_version, run_tasks
@@ -96,6 +96,7 @@ __all__ = [
     "run_study_task",
     "run_tasks",
     "run_variant_task",
+    "variant_pipeline",
     "variant_groups",
     "write_document",
 ]

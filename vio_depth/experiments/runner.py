@@ -25,7 +25,7 @@ from vio_core.settings import override
 from ..baselines import iter_paper_reference, paper_reference_preset
 from ..evaluation import compute_metrics, oracle_fit, point_depth_errors
 from ..frame import Frame
-from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings, create_pose_source
+from ..pipeline import FrameResult, FrameStatus, Pipeline, PipelineSettings, build_matcher, build_pose_stage
 from ..rescale import metric_depth, sample_bilinear
 from ..run import backfill_leading_frames
 from .context import TaskContext, open_task
@@ -149,6 +149,20 @@ def _score_result(ctx: TaskContext, frame: Frame, res: FrameResult, variant: Var
                       r2=None if fit is None else fit.r2, points=n_points, point_error=perr)
 
 
+def variant_pipeline(settings: PipelineSettings, frames, source) -> Pipeline:
+    """The pipeline of ``settings`` over ``frames`` (a :class:`~.context.FrameRange`) with the
+    disparity ``source``.
+
+    The pose source is built for the whole sequence (``frames.base``: the IMU source looks up
+    neighbouring frames by their index in it) with the settings' matcher, which a tracking
+    source (``vio``) shares with the pipeline: its features are extracted once, by the
+    variant's matcher (before, the odometry always got SIFT, whatever the variant's matcher).
+    """
+    matcher = build_matcher(settings)
+    poses = build_pose_stage(settings.poses, frames.base, matcher)
+    return Pipeline(settings, pose_source=poses, disparity_source=source, sequence=frames, matcher=matcher)
+
+
 def run_stream(ctx: TaskContext, source, settings: PipelineSettings, on_frame, frames=None):
     """Our pipeline over the processed range in order, then the backfill of ``vio-depth run``.
 
@@ -166,9 +180,7 @@ def run_stream(ctx: TaskContext, source, settings: PipelineSettings, on_frame, f
     """
     frames = ctx.frames if frames is None else frames
     before = source.seconds
-    # the pose source looks up neighbouring frames by their index in the whole sequence (IMU)
-    poses = create_pose_source(settings.poses, frames.base)
-    pipeline = Pipeline(settings, pose_source=poses, disparity_source=source, sequence=frames)
+    pipeline = variant_pipeline(settings, frames, source)
     wanted = set(ctx.evaluate)
     values: dict[int, object] = {}
     outcomes: dict[int, _Outcome] = {}

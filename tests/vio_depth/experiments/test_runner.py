@@ -18,8 +18,10 @@ from vio_depth.experiments import (
     parse_variant,
     resolve_entry,
     run_variant_task,
+    variant_pipeline,
 )
 from vio_depth.io import open_sequence
+from vio_depth.pipeline import PipelineSettings
 
 ROOT = Path(__file__).resolve().parents[3]
 STREET = ROOT / "sample_sequences" / "street"
@@ -108,3 +110,14 @@ def test_garg_crop_changes_the_scored_pixels(exact_ctx):
     a = evaluate_variant(exact_ctx, parse_variant("sfm-no-ransac"))["row"]
     b = evaluate_variant(cropped, parse_variant("sfm-no-ransac"))["row"]
     assert a["abs_rel"] != b["abs_rel"]
+
+
+def test_a_vio_variant_tracks_with_the_variants_matcher():
+    """The odometry extracts its features with the variant's matcher, shared with the pipeline
+    (before, the experiments built it with SIFT whatever the variant said)."""
+    pytest.importorskip("kornia")
+    room = open_sequence(ROOT / "sample_sequences" / "room")
+    settings = PipelineSettings.from_presets(matcher="xfeat+lighterglue", poses="vio", pairing="indoor")
+    pipeline = variant_pipeline(settings, FrameRange(room, 0, 8), InverseDepth())
+    assert pipeline.tracker is not None and pipeline.tracker.matcher is pipeline.matcher
+    assert "xfeat" in pipeline.matcher.name.lower(), pipeline.matcher.name
