@@ -15,10 +15,12 @@ whole session and compared at its end.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,20 +108,48 @@ def _samples_unchanged():
 STREET = ROOT / "sample_sequences" / "street"
 
 
-def copy_street(dst: Path, n: int) -> Path:
-    """A native sequence at ``dst`` with the first ``n`` frames of the street sample (SIMULATED disparity)."""
+def copy_native_prefix(src: Path, dst: Path, n: int, poses: str = "keep") -> Path:
+    """A native sequence at ``dst`` with the first ``n`` frames of the native sequence ``src``
+    (a bundled sample: SIMULATED disparity). ``poses``: ``keep`` (as they are), ``scramble``
+    (the poses.txt rows shuffled among the timestamps, seed 0) or ``drop`` (no poses.txt, no
+    "poses" key in sequence.json)."""
+    if poses not in ("keep", "scramble", "drop"):
+        raise ValueError(f"poses: keep, scramble or drop, got {poses!r}")
     dst.mkdir(parents=True)
-    for name in ("sequence.json", "poses.txt", "imu.txt"):
-        shutil.copy(STREET / name, dst / name)
-    lines = [ln for ln in (STREET / "frames.txt").read_text().splitlines() if ln and not ln.startswith("#")][:n]
+    lines = [ln for ln in (src / "frames.txt").read_text().splitlines() if ln and not ln.startswith("#")][:n]
     (dst / "frames.txt").write_text("\n".join(lines) + "\n")
+    shutil.copy(src / "imu.txt", dst / "imu.txt")
     (dst / "images").mkdir()
     (dst / "depth").mkdir()
     for ln in lines:
         stem = Path(ln.split()[1]).stem
-        shutil.copy(STREET / "images" / f"{stem}.jpg", dst / "images" / f"{stem}.jpg")
-        shutil.copy(STREET / "depth" / f"{stem}.png", dst / "depth" / f"{stem}.png")
+        shutil.copy(src / "images" / f"{stem}.jpg", dst / "images" / f"{stem}.jpg")
+        shutil.copy(src / "depth" / f"{stem}.png", dst / "depth" / f"{stem}.png")
+    if poses == "keep":
+        for name in ("sequence.json", "poses.txt"):
+            shutil.copy(src / name, dst / name)
+        return dst
+    meta = json.loads((src / "sequence.json").read_text())
+    if poses == "drop":
+        del meta["poses"]
+    else:
+        rows = [ln.split() for ln in (src / "poses.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+        order = np.random.default_rng(0).permutation(len(rows))
+        rows = [[r[0]] + rows[j][1:] for r, j in zip(rows, order)]
+        (dst / "poses.txt").write_text("\n".join(" ".join(r) for r in rows) + "\n")
+    (dst / "sequence.json").write_text(json.dumps(meta))
     return dst
+
+
+def copy_street(dst: Path, n: int) -> Path:
+    """A native sequence at ``dst`` with the first ``n`` frames of the street sample (SIMULATED disparity)."""
+    return copy_native_prefix(STREET, dst, n)
+
+
+@pytest.fixture
+def native_prefix():
+    """:func:`copy_native_prefix`: ``native_prefix(src, dst, n, poses="keep"|"scramble"|"drop")``."""
+    return copy_native_prefix
 
 
 @pytest.fixture

@@ -9,19 +9,8 @@ from vio_core.errors import InputError
 from vio_depth.evaluation.reference_points import beam_rows, lidar_beams, random_samples
 
 
-def _gt(h=100, w=50, first=10, last=89, seed=0):
-    """Depth valid on rows first..last only (like KITTI's projected LiDAR), with holes."""
-    rng = np.random.default_rng(seed)
-    gt = rng.uniform(1.0, 80.0, (h, w)).astype(np.float32)
-    gt[:first] = 0.0
-    gt[last + 1:] = 0.0
-    gt[rng.random((h, w)) < 0.3] = 0.0
-    gt[first, 0] = gt[last, 0] = 5.0  # make sure the band is exactly [first, last]
-    return gt
-
-
-def test_beam_rows_are_evenly_spaced_band_centres():
-    gt = _gt()  # band of 80 rows, 10..89
+def test_beam_rows_are_evenly_spaced_band_centres(banded_gt):
+    gt = banded_gt  # band of 80 rows, 10..89
     assert beam_rows(gt, 1).tolist() == [50]  # 10 + floor(0.5 * 80)
     rows16 = beam_rows(gt, 16)
     assert rows16[0] == 12 and np.all(np.diff(rows16) == 5)  # 10 + floor((k + 0.5) * 5)
@@ -36,8 +25,8 @@ def test_beam_rows_are_evenly_spaced_band_centres():
         beam_rows(np.zeros((5, 5)), 1)
 
 
-def test_lidar_beams_take_every_valid_pixel_of_those_rows():
-    gt = _gt()
+def test_lidar_beams_take_every_valid_pixel_of_those_rows(banded_gt):
+    gt = banded_gt
     uv, depth = lidar_beams(gt, 16)
     rows = beam_rows(gt, 16)
     assert set(uv[:, 1].astype(int)) <= set(rows.tolist())
@@ -46,8 +35,8 @@ def test_lidar_beams_take_every_valid_pixel_of_those_rows():
     assert np.all(depth > 0)
 
 
-def test_random_samples():
-    gt = _gt()
+def test_random_samples(banded_gt):
+    gt = banded_gt
     uv, depth = random_samples(gt, 500, seed=3)
     assert len(uv) == 500 and np.all(depth > 0)
     flat = uv[:, 1].astype(int) * gt.shape[1] + uv[:, 0].astype(int)

@@ -9,17 +9,6 @@ from vio_core.errors import InputError, SettingsError, UnknownNameError
 from vio_depth.pipeline import PointSourceKind, PointSourceSpec, parse_points_spec
 
 
-def _gt(h=100, w=50, first=10, last=89, seed=0):
-    """Depth valid on rows first..last only (like KITTI's projected LiDAR), with holes."""
-    rng = np.random.default_rng(seed)
-    gt = rng.uniform(1.0, 80.0, (h, w)).astype(np.float32)
-    gt[:first] = 0.0
-    gt[last + 1:] = 0.0
-    gt[rng.random((h, w)) < 0.3] = 0.0
-    gt[first, 0] = gt[last, 0] = 5.0  # make sure the band is exactly [first, last]
-    return gt
-
-
 def test_parse_points_spec():
     assert parse_points_spec("sfm") == PointSourceSpec(PointSourceKind.SFM)
     assert parse_points_spec("LiDAR:16") == PointSourceSpec(PointSourceKind.LIDAR, 16)
@@ -36,8 +25,8 @@ def test_parse_points_spec():
         assert "valid forms" in str(info.value)
 
 
-def test_spec_sample_dispatches():
-    gt = _gt()
+def test_spec_sample_dispatches(banded_gt):
+    gt = banded_gt
     uv, depth = parse_points_spec("lidar:1").sample(gt)
     assert set(uv[:, 1].astype(int)) == {50}
     uv, _ = parse_points_spec("random:20", seed=1).sample(gt)

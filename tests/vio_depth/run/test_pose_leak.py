@@ -51,32 +51,16 @@ VOLATILE_FIELDS = {"frames.jsonl": ("seconds", "timings"), "metrics.json": ("sec
                    "vio-depth-run.json": ("id", "created"), "vio-depth-report.json": ("id", "created")}
 
 
-def _native(dst: Path, poses: str) -> Path:
+#: the leak test's pose variants -> native_prefix's poses argument
+NATIVE_POSES = {"true": "keep", "scrambled": "scramble", "absent": "drop"}
+
+
+def _native(native_prefix, dst: Path, poses: str) -> Path:
     """The first ``N`` room frames as a native sequence with ``poses`` true, scrambled (the
     pose rows shuffled among the timestamps) or absent (no poses.txt, no "poses" key)."""
     if dst.exists():
         shutil.rmtree(dst)
-    dst.mkdir(parents=True)
-    meta = json.loads((ROOM / "sequence.json").read_text())
-    lines = [ln for ln in (ROOM / "frames.txt").read_text().splitlines() if ln and not ln.startswith("#")][:N]
-    (dst / "frames.txt").write_text("\n".join(lines) + "\n")
-    shutil.copy(ROOM / "imu.txt", dst / "imu.txt")
-    (dst / "images").mkdir()
-    (dst / "depth").mkdir()
-    for ln in lines:
-        stem = Path(ln.split()[1]).stem
-        shutil.copy(ROOM / "images" / f"{stem}.jpg", dst / "images" / f"{stem}.jpg")
-        shutil.copy(ROOM / "depth" / f"{stem}.png", dst / "depth" / f"{stem}.png")
-    rows = [ln.split() for ln in (ROOM / "poses.txt").read_text().splitlines() if ln and not ln.startswith("#")]
-    if poses == "scrambled":
-        order = np.random.default_rng(0).permutation(len(rows))
-        rows = [[r[0]] + rows[j][1:] for r, j in zip(rows, order)]
-    if poses == "absent":
-        del meta["poses"]
-    else:
-        (dst / "poses.txt").write_text("\n".join(" ".join(r) for r in rows) + "\n")
-    (dst / "sequence.json").write_text(json.dumps(meta))
-    return dst
+    return native_prefix(ROOM, dst, N, NATIVE_POSES[poses])
 
 
 @pytest.fixture(scope="module")
@@ -218,10 +202,10 @@ def _check_vio(outs: dict[str, Path]) -> None:
     assert metrics["true"]["trajectory"]["reference_poses"] > 0 and metrics["true"]["trajectory"]["ate"] is not None
 
 
-def test_vio_outputs_ignore_the_native_sequence_poses(tmp_path):
+def test_vio_outputs_ignore_the_native_sequence_poses(tmp_path, native_prefix):
     outs = {}
     for variant in VARIANTS:
-        seq = _native(tmp_path / "seq", variant)
+        seq = _native(native_prefix, tmp_path / "seq", variant)
         outs[variant] = _run(seq, tmp_path, "vio", [], variant)
     _check_vio(outs)
 
@@ -270,13 +254,13 @@ def _check_clouds_on_run_poses(out: Path) -> int:
 
 
 @pytest.mark.parametrize("data", ["native", "asl"])
-def test_imu_clouds_are_placed_with_the_runs_own_poses(tmp_path, data, request):
+def test_imu_clouds_are_placed_with_the_runs_own_poses(tmp_path, data, request, native_prefix):
     if data == "asl":
         master, disparity = request.getfixturevalue("asl_master")
     checked = {}
     for variant in VARIANTS:
         if data == "native":
-            seq, extra = _native(tmp_path / "seq", variant), []
+            seq, extra = _native(native_prefix, tmp_path / "seq", variant), []
         else:
             seq, extra = _asl(master, tmp_path / "seq", variant), ["--disparity-dir", str(disparity)]
         # scrambled poses give the IMU source nonsense anchors: perhaps no depth at all (exit code 3)

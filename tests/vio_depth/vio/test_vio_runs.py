@@ -5,7 +5,6 @@ sequences without poses run, and missing inputs give one clear line."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,34 +22,6 @@ pytest.importorskip("gtsam")
 N = 34  # the dynamic start of the room sample needs about 25 frames
 
 
-def _copy_room(dst: Path, n: int = N, poses: str = "keep") -> Path:
-    """The first ``n`` room frames as a native sequence; ``poses``: keep, scramble (poses.txt
-    rows shuffled among the timestamps) or drop (no poses.txt, no "poses" key)."""
-    dst.mkdir(parents=True)
-    meta = json.loads((ROOM / "sequence.json").read_text())
-    lines = [ln for ln in (ROOM / "frames.txt").read_text().splitlines() if ln and not ln.startswith("#")][:n]
-    (dst / "frames.txt").write_text("\n".join(lines) + "\n")
-    shutil.copy(ROOM / "imu.txt", dst / "imu.txt")
-    (dst / "images").mkdir()
-    (dst / "depth").mkdir()
-    for ln in lines:
-        stem = Path(ln.split()[1]).stem
-        shutil.copy(ROOM / "images" / f"{stem}.jpg", dst / "images" / f"{stem}.jpg")
-        shutil.copy(ROOM / "depth" / f"{stem}.png", dst / "depth" / f"{stem}.png")
-    rows = [ln.split() for ln in (ROOM / "poses.txt").read_text().splitlines() if ln and not ln.startswith("#")]
-    if poses == "scramble":
-        rng = np.random.default_rng(0)
-        values = [r[1:] for r in rows]
-        order = rng.permutation(len(rows))
-        rows = [[r[0]] + values[j] for r, j in zip(rows, order)]
-    if poses == "drop":
-        del meta["poses"]
-    else:
-        (dst / "poses.txt").write_text("\n".join(" ".join(r) for r in rows) + "\n")
-    (dst / "sequence.json").write_text(json.dumps(meta))
-    return dst
-
-
 def _run(root: Path, out: Path):
     seq = open_sequence(root)
     settings = PipelineSettings.from_presets(poses="vio", pairing="indoor")
@@ -61,11 +32,11 @@ def _run(root: Path, out: Path):
     return summary, records
 
 
-def test_sequence_poses_are_never_used(tmp_path):
+def test_sequence_poses_are_never_used(tmp_path, native_prefix):
     """Scrambled sequence poses and no sequence poses at all give the identical run: the same
     frame records, depth maps and trajectory.tum; only the evaluation against them differs."""
-    s1, rec1 = _run(_copy_room(tmp_path / "scrambled", poses="scramble"), tmp_path / "out1")
-    s2, rec2 = _run(_copy_room(tmp_path / "none", poses="drop"), tmp_path / "out2")
+    s1, rec1 = _run(native_prefix(ROOM, tmp_path / "scrambled", N, "scramble"), tmp_path / "out1")
+    s2, rec2 = _run(native_prefix(ROOM, tmp_path / "none", N, "drop"), tmp_path / "out2")
     assert rec1 == rec2
     assert (tmp_path / "out1" / "trajectory.tum").read_bytes() == (tmp_path / "out2" / "trajectory.tum").read_bytes()
     for png in sorted((tmp_path / "out1" / "depth").glob("*.png")):
@@ -77,9 +48,9 @@ def test_sequence_poses_are_never_used(tmp_path):
     assert "retroactive" in statuses  # the frames of the initialisation, posed in the backward pass
 
 
-def test_true_poses_only_evaluate(tmp_path):
+def test_true_poses_only_evaluate(tmp_path, native_prefix):
     """With the true poses present, the run reports ATE against them: within 1 % of the path."""
-    summary, records = _run(_copy_room(tmp_path / "seq"), tmp_path / "out")
+    summary, records = _run(native_prefix(ROOM, tmp_path / "seq", N), tmp_path / "out")
     ate = summary.trajectory["ate"]
     assert ate["ate_fraction_of_path"] < 0.01, ate
     assert summary.frames_with_depth >= N - 3
