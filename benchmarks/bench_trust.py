@@ -40,6 +40,7 @@ Run: ``python benchmarks/bench_trust.py [--datasets 7scenes,kitti,street,room]
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import os
@@ -51,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from baseline_checkout import baseline_checkout
 from bench_landmarks import DATASETS, PATHS, Dataset  # the same datasets, pairings and paths
 
 REPO = Path(__file__).resolve().parents[1]
@@ -154,13 +156,11 @@ def main(argv=None) -> int:
     report = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        checkouts = {"now": REPO}
-        if not args.no_baseline:
-            base = tmp / "baseline"
-            subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-f", str(base), args.baseline_rev],
-                           check=True, capture_output=True)
-            checkouts = {"baseline": base, "now": REPO}
-        try:
+        with contextlib.ExitStack() as stack:
+            checkouts = {"now": REPO}
+            if not args.no_baseline:
+                checkouts = {"baseline": stack.enter_context(baseline_checkout(args.baseline_rev, tmp / "baseline")),
+                             "now": REPO}
             for name in args.datasets.split(","):
                 ds = DATASETS[name]
                 folder = ds.folder(args.data)
@@ -181,10 +181,6 @@ def main(argv=None) -> int:
                             print_reliability(rows)
                             report[f"{name}/{path}/reliability"] = rows
                     sys.stdout.flush()
-        finally:
-            if not args.no_baseline:
-                subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(checkouts["baseline"])],
-                               capture_output=True)
     if args.json:
         args.json.write_text(json.dumps(report, indent=1, default=float))
     return 0

@@ -48,6 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
+from baseline_checkout import baseline_checkout
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = (REPO / ".." / "shared" / "data").resolve()
 VENV_BIN = REPO / ".venv" / "bin"
@@ -161,17 +163,12 @@ def main() -> int:
             table = {name: table[name] for name in wanted}
         if any(name.startswith("euroc") for name in table):
             write_euroc_disparity(work / "euroc_disparity")
-        base = Path(tmp) / "baseline-checkout"
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-f", str(base), args.baseline_rev],
-                       check=True, capture_output=True)
-        try:
-            sides = {}
+        sides = {}
+        with baseline_checkout(args.baseline_rev, Path(tmp) / "baseline-checkout") as base:
             for side, checkout in (("baseline", base), ("candidate", args.candidate.resolve())):
                 (work / side).mkdir(parents=True, exist_ok=True)
                 print(f"{side}: {checkout}", flush=True)
                 sides[side] = run_side(checkout, work / side, table)
-        finally:
-            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(base)], capture_output=True)
         print(f"\nbaseline {args.baseline_rev} vs candidate {args.candidate.resolve()}"
               f"{' (--quick: first %d frames)' % QUICK_FRAMES if args.quick else ''}\n")
         print("| run | baseline | candidate | files | identical | differ |")

@@ -100,13 +100,20 @@ def asl_room(cache: Path, log=print) -> StreamData:
     if not ready:
         _render_asl(folder, log)
         (folder / ASL_MARKER).write_text(json.dumps(want))
+    return _rendered("asl_room", "generated ASL sample: room, SIMULATED images, IMU and disparity (affine map of "
+                     "the true inverse depth)", folder, "vio", "indoor")
+
+
+def _rendered(name: str, label: str, folder: Path, poses: str, pairing: str) -> StreamData:
+    """A rendered sequence at ``folder`` with its disparity files in ``folder/disparity``; it
+    streams its IMU under ``vio``, its poses otherwise."""
     seq = open_sequence(folder)
     disparity = FileDisparity(folder / "disparity")
     frames = [seq[i] for i in range(len(seq))]
-    return StreamData("asl_room", "generated ASL sample: room, SIMULATED images, IMU and disparity (affine map of "
-                      "the true inverse depth)", seq.camera, np.array([f.timestamp for f in frames]),
+    extra = {"imu": seq.imu} if poses == "vio" else {"T_w_c": np.stack([f.T_w_c for f in frames])}
+    return StreamData(name, label, seq.camera, np.array([f.timestamp for f in frames]),
                       lambda i: (_rgb(frames[i].image()), np.asarray(disparity(frames[i]), np.float32)),
-                      "vio", "indoor", imu=seq.imu, pose_kind=seq.pose_kind)
+                      poses, pairing, pose_kind=seq.pose_kind, **extra)
 
 
 def _render_asl(folder: Path, log) -> None:
@@ -172,13 +179,8 @@ def street_kitti(cache: Path, log=print) -> StreamData:
     import throughput_data
 
     folder = throughput_data.prepare_rendered("street_kitti", throughput_data.DEFAULT_CACHE, budget_s=3600.0, log=log)
-    seq = open_sequence(folder)
-    disparity = FileDisparity(folder / "disparity")
-    frames = [seq[i] for i in range(len(seq))]
-    return StreamData("street_kitti", "street drive rendered at the KITTI size: SIMULATED images, exact poses, "
-                      "SIMULATED disparity", seq.camera, np.array([f.timestamp for f in frames]),
-                      lambda i: (_rgb(frames[i].image()), np.asarray(disparity(frames[i]), np.float32)),
-                      "gt", "kitti", T_w_c=np.stack([f.T_w_c for f in frames]), pose_kind=seq.pose_kind)
+    return _rendered("street_kitti", "street drive rendered at the KITTI size: SIMULATED images, exact poses, "
+                     "SIMULATED disparity", folder, "gt", "kitti")
 
 
 #: name -> builder ``(cache, log) -> StreamData | None`` (None: the data are absent)
