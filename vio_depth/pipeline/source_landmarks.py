@@ -29,12 +29,12 @@ import numpy as np
 
 from matchers import Features, Matcher
 from vio_core.checks import check_array
-from vio_core.errors import InputError
-from vio_core.geometry import invert_transform
+from vio_core.errors import InputError, NumericalError
 
 from ..frame import Frame
 from ..landmarks import KeyframeInput, LandmarkEstimator, LandmarkSettings, MotionFactors
-from ..poses import FramePose, PoseSource, adjoint
+from ..poses import FramePose, PoseSource
+from ..vio import PoseHistory
 from .result import LandmarkInfo, PointsOutcome
 from .status import FrameStatus
 from .vio_points import shared_columns
@@ -157,7 +157,7 @@ class SourceLandmarkPoints:
         try:
             out = self.estimator.process(frame_id, frame.timestamp, frame.camera, T_prior, features,
                                          prior_covariance=C_prior)
-        except (InputError, RuntimeError) as exc:  # the window could not take the keyframe: start a new one
+        except (InputError, NumericalError, RuntimeError) as exc:  # the window is unusable: start a new one
             self.estimator.reset()
             self._frames.clear()
             return PointsOutcome(FrameStatus.NO_POSE, f"the landmark window was restarted: {exc}")
@@ -185,14 +185,5 @@ class SourceLandmarkPoints:
         ids = w.keyframe_ids
         if len(ids) < 2:
             return 0.0
-        T_a, T_b = w.pose(ids[0]), w.pose(ids[-1])
-        S = w.joint_covariance([ids[0], ids[-1]])  # (12, 12) the two poses' joint marginal
-        A = adjoint(invert_transform(T_b) @ T_a)  # xi_ab = xi_b - Ad(T_b^-1 T_a) xi_a (right perturbations)
-        J = np.hstack([-A, np.eye(6)])
-        C = J @ S @ J.T  # (6, 6) of T_a^-1 T_b, in the newest keyframe's camera
-        d = T_b[:3, :3].T @ (T_b[:3, 3] - T_a[:3, 3])  # the span in the newest keyframe's camera
-        n = float(np.linalg.norm(d))
-        if n <= 0:
-            return 0.0
-        u = d / n
-        return float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0)) / n)
+        sigma, n = PoseHistory.span_sigma(w.pose(ids[0]), w.pose(ids[-1]), w.joint_covariance([ids[0], ids[-1]]), 0, 1)
+        return sigma / n if n > 0 else 0.0

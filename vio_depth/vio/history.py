@@ -186,9 +186,14 @@ class PoseHistory:
         if len(self._window[0]) < 2:
             return 0.0, 0.0  # one keyframe: no span to be unsure about
         ids, S = self._window
-        a, b = ids[0], ids[-1]
-        T_a, T_b = self._kf_pose[a], self._kf_pose[b]
-        C = self.pair_covariance(T_a, T_b, S, 0, len(ids) - 1)
+        return self.span_sigma(self._kf_pose[ids[0]], self._kf_pose[ids[-1]], S, 0, len(ids) - 1)
+
+    @staticmethod
+    def span_sigma(T_a, T_b, S, i: int, j: int) -> tuple[float, float]:
+        """``(sigma, distance)`` metres of the span from ``T_a`` to ``T_b``: the 1-sigma of the
+        relative pose's translation along the span (:meth:`pair_covariance`; the RMS over the
+        axes when the two coincide) and the span's length. Arguments as :meth:`pair_covariance`."""
+        C = PoseHistory.pair_covariance(T_a, T_b, S, i, j)
         d_b = T_b[:3, :3].T @ (T_b[:3, 3] - T_a[:3, 3])  # the displacement in b's frame (where the error lives)
         n = float(np.linalg.norm(d_b))
         u = d_b / n if n > 0 else np.zeros(3)
