@@ -13,6 +13,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from vio_core.camera import Camera
 from vio_core.checks import check_array
 
 
@@ -82,3 +83,34 @@ class Matcher(Protocol):
 
     def match(self, feats_a: Features, feats_b: Features) -> Matches:
         """Correspondences between two feature sets from :meth:`extract`."""
+
+
+@dataclass(frozen=True)
+class MotionHint:
+    """What is known of the camera's motion since the previous tracked frame.
+
+    Attributes:
+        camera: the camera of both images (its distortion is respected).
+        R_cur_prev: (3, 3) rotation of the previous camera into the current one
+            (``x_cur = R_cur_prev @ x_prev`` for a direction), e.g. integrated from the
+            gyroscope; None when unknown.
+    """
+
+    camera: Camera
+    R_cur_prev: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.R_cur_prev is not None:
+            check_array("R_cur_prev", self.R_cur_prev, (3, 3), finite=True)
+
+
+@runtime_checkable
+class FrameTracker(Matcher, Protocol):
+    """A matcher that follows features from one frame to the next (KLT): its features of a
+    frame depend on the previous frame's, so frames must come to :meth:`track` in order."""
+
+    def track(self, image: np.ndarray, hint: MotionHint | None = None) -> Features:
+        """Features of the next frame ``image: (H, W, 3) uint8 RGB``, followed from the previous one."""
+
+    def reset(self) -> None:
+        """Forget the previous frame: the next :meth:`track` starts new tracks."""

@@ -14,11 +14,12 @@ from vio_core.errors import SettingsError
 from vio_core.settings import Presets
 
 from .base import Matcher
+from .klt import KltSettings, KltTracker
 from .learned import LearnedMatcher
 from .learned_settings import LearnedMatcherSettings
 from .sift import SiftMatcher, SiftSettings
 
-MatcherSettings = SiftSettings | LearnedMatcherSettings
+MatcherSettings = SiftSettings | LearnedMatcherSettings | KltSettings
 
 #: Named matcher presets (``--matcher``).
 MATCHER_PRESETS: Presets = Presets("matcher", {
@@ -26,11 +27,13 @@ MATCHER_PRESETS: Presets = Presets("matcher", {
     "disk+lightglue": LearnedMatcherSettings(extractor="disk", max_side=1024, detection_threshold=0.0),
     "aliked+lightglue": LearnedMatcherSettings(extractor="aliked", max_side=1024, detection_threshold=0.2),
     "xfeat+lighterglue": LearnedMatcherSettings(extractor="xfeat", max_side=640, detection_threshold=0.05),
+    "klt": KltSettings(),
 }, default="sift", descriptions={
     "sift": "OpenCV SIFT, RootSIFT, two-way ratio test + mutual nearest neighbour (CPU)",
     "disk+lightglue": "DISK + LightGlue (kornia, bundled weights)",
     "aliked+lightglue": "ALIKED + LightGlue (kornia, bundled weights)",
     "xfeat+lighterglue": "XFeat + LighterGlue (kornia, bundled weights)",
+    "klt": "KLT optical-flow tracks, gyroscope-predicted; matches join track ids (frames in order)",
 })
 
 def available_matchers() -> list[str]:
@@ -69,5 +72,7 @@ def create_matcher(settings: "MatcherSettings | str", device: str | None = None)
             return SiftMatcher(settings)
         case LearnedMatcherSettings():
             return LearnedMatcher(settings)
+        case KltSettings():
+            return KltTracker(settings)
     raise SettingsError(f"no matcher for settings of type {type(settings).__name__}; valid: SiftSettings, "
-                        f"LearnedMatcherSettings (presets {', '.join(MATCHER_PRESETS)})")
+                        f"LearnedMatcherSettings, KltSettings (presets {', '.join(MATCHER_PRESETS)})")

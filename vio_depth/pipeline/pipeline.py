@@ -10,18 +10,20 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import replace
+from typing import Callable
 
-from matchers import Features, Matcher
+from matchers import Features, FrameTracker, Matcher
 from vio_core.errors import CorruptImageError
 
 from ..disparity import DisparitySource, check_inversion, check_map_content, missing_disparity_reason
-from ..frame import Frame
-from ..poses import PoseSource, TrackingPoseSource
-from ..rescale import Rescaler, sample_bilinear
+from ..frame import Frame, ImuData
+from ..poses import GroundTruthPoseSettings, PoseSource, TrackingPoseSource
+from ..rescale import Rescaler, disparity_spread, sample_bilinear
 from .build import PoseStage, build_stages
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
+from .tracking import TrackedExtraction
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +45,13 @@ class Pipeline:
         sequence: the sequence the frames come from, when the default sources need it
             (IMU samples, the disparity it carries).
         matcher: a ready matcher instead of one built from ``settings.matcher``.
+        imu_of: returns the IMU samples known so far, for a tracking matcher's rotation
+            prediction (:mod:`vio_depth.pipeline.tracking`); default: ``sequence.imu``.
     """
 
     def __init__(self, settings: PipelineSettings | None = None, pose_source: PoseSource | PoseStage | None = None,
-                 disparity_source: DisparitySource | None = None, *, sequence=None, matcher: Matcher | None = None):
+                 disparity_source: DisparitySource | None = None, *, sequence=None, matcher: Matcher | None = None,
+                 imu_of: Callable[[], ImuData | None] | None = None):
         self.settings = settings = PipelineSettings() if settings is None else settings
         self.sequence = sequence
         stages = build_stages(settings, sequence, pose_source, disparity_source, matcher)
@@ -59,6 +64,15 @@ class Pipeline:
         self.disparity_source = stages.disparity_source
         self.rescaler = Rescaler(settings.rescaler)
         self.points = stages.points
+        self._imu_of = imu_of
+        matcher = self.matcher
+        #: a tracking matcher's in-order extraction with its rotation prediction (None for other matchers)
+        self.tracked: TrackedExtraction | None = None
+        if isinstance(matcher, FrameTracker):
+            if imu_of is None:
+                imu = None if sequence is None else sequence.imu
+                imu_of = lambda: imu  # noqa: E731
+            self.tracked = TrackedExtraction(matcher, imu_of, isinstance(settings.poses, GroundTruthPoseSettings))
 
     @property
     def matcher(self) -> Matcher | None:
@@ -68,7 +82,7 @@ class Pipeline:
     def fresh(self) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history."""
         return Pipeline(self.settings, self.poses, self.disparity_source, sequence=self.sequence,
-                        matcher=self.matcher)
+                        matcher=self.matcher, imu_of=self._imu_of)
 
     # ------------------------------------------------------------------ per frame
     def process(self, frame: Frame) -> FrameResult:
@@ -80,7 +94,9 @@ class Pipeline:
 
         They read nothing of the pipeline's state (keyframes, filter), so frames may be
         prepared ahead of :meth:`process_prepared`, in other threads (several at once when
-        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread). ``features``: this
+        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread;
+        a tracking matcher, KLT, follows the previously prepared frame: frames in order, one
+        thread). ``features``: this
         frame's features extracted earlier by the same matcher (the image is then not read
         here).
         """
@@ -94,7 +110,8 @@ class Pipeline:
                 frame = replace(frame, load_image=lambda: image)
                 timings["image"] = clock() - t
                 t = clock()
-                features = matcher.extract(image)  # once per frame, kept if keyframe
+                # once per frame, kept if keyframe; a tracker follows the previous frame
+                features = matcher.extract(image) if self.tracked is None else self.tracked(frame, image)
                 timings["features"] = clock() - t
             t = clock()
             disparity = self.disparity_source(frame)
@@ -146,6 +163,9 @@ class Pipeline:
         content = check_map_content(disparity, self.settings.disparity.min_valid_fraction)
         result.disparity_valid_fraction = content.valid_fraction
         d, inside = sample_bilinear(disparity, points.uv)
+        rs = self.settings.rescaler
+        if rs.max_disparity_spread is not None and len(points.uv):  # points on depth edges: not fitted
+            inside &= disparity_spread(disparity, points.uv, rs.spread_radius_px) <= rs.max_disparity_spread
         result.points_sampled = int(inside.sum())
         result.points_uv, result.points_depth = points.uv[inside], points.depth[inside]
         result.points_sigma = None if points.sigma is None else points.sigma[inside]

@@ -70,7 +70,7 @@ class FrameStream:
         self._inputs = StreamInputs(pose_kind, imu_calibration)
         matcher = build_matcher(settings)
         poses = build_pose_stage(settings.poses, matcher=matcher, stream=self._inputs)
-        self.pipeline = Pipeline(settings, poses, self._disparity, matcher=matcher)
+        self.pipeline = Pipeline(settings, poses, self._disparity, matcher=matcher, imu_of=lambda: self._inputs.imu)
 
     @property
     def settings(self) -> PipelineSettings:
