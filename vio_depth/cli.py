@@ -87,6 +87,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-fit-error", type=float, default=None, metavar="E",
                    help="write a frame only when its predicted relative depth error from the rescaling is at most "
                         "E (default 0.03)")
+    g.add_argument("--edge-guard", type=float, default=None, metavar="F",
+                   help="do not fit points where the disparity varies by more than the fraction F within 3 px "
+                        "(points on depth edges; default: off; 0.1 with --matcher klt, whose corners sit on edges)")
     g.add_argument("--rescaler", default=None, help="rescaler preset: streaming (default), per_frame, paper")
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")
@@ -216,6 +219,8 @@ def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
         s = replace(s, rescaler=PRESET_FAMILIES["rescaler"][args.rescaler])
     if args.max_fit_error is not None:
         s = override(s, {"rescaler": {"max_fit_error": args.max_fit_error}})
+    if args.edge_guard is not None:
+        s = override(s, {"rescaler": {"max_disparity_spread": args.edge_guard}})
     if args.pose_uncertainty is not None:
         if not isinstance(s.poses, GroundTruthPoseSettings):
             raise SettingsError("--pose-uncertainty states the error of the sequence's poses (--poses gt); the "

@@ -26,7 +26,7 @@ from .rescaler import (
     RescaleResult,
     RescalerSettings,
 )
-from .sampling import sample_bilinear
+from .sampling import disparity_spread, sample_bilinear
 from .temporal import AffineKalmanFilter, KalmanEstimate, KalmanSettings
 
 __all__ = [
@@ -48,6 +48,7 @@ __all__ = [
     "metric_depth",
     "metric_disparity_sigma",
     "predicted_relative_error",
+    "disparity_spread",
     "sample_bilinear",
     "shared_depth_errors",
 ]

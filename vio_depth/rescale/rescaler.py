@@ -53,6 +53,12 @@ class RescalerSettings:
             same bound; without one the frame has no depth (status ``uncertain_fit``).
         max_fallback_error: a tighter bound for the fallbacks only, or None (the default):
             ``max_fit_error``.
+        max_disparity_spread: points where the disparity varies by more than this fraction
+            within ``spread_radius_px`` are not fitted (a point on a depth edge reads the
+            other surface's disparity: :func:`~vio_depth.rescale.disparity_spread`); None
+            (the default) fits every point. Corners (``--matcher klt``) sit on edges: 0.1
+            there.
+        spread_radius_px: the half-size of that window, pixels.
     """
 
     ransac: RansacSettings = RansacSettings()
@@ -61,11 +67,19 @@ class RescalerSettings:
     temporal: KalmanSettings | None = KalmanSettings()
     max_fit_error: float = 0.03
     max_fallback_error: float | None = None
+    max_disparity_spread: float | None = None
+    spread_radius_px: int = 3
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
         require_positive(self, "max_fit_error", finite=False)  # relative errors
+        if self.max_disparity_spread is not None:
+            require_positive(self, "max_disparity_spread", finite=False)
+        if isinstance(self.spread_radius_px, bool) or not isinstance(self.spread_radius_px, int) \
+                or self.spread_radius_px < 1:
+            raise SettingsError(f"RescalerSettings.spread_radius_px must be an integer >= 1, got "
+                                f"{self.spread_radius_px!r}")
         if self.max_fallback_error is not None:
             require_positive(self, "max_fallback_error", finite=False)
             if self.max_fallback_error > self.max_fit_error:

@@ -47,3 +47,43 @@ def sample_bilinear(image, uv) -> tuple[np.ndarray, np.ndarray]:
         values = (i00 * (1 - fx) + i01 * fx) * (1 - fy) + (i10 * (1 - fx) + i11 * fx) * fy
     values = np.where(valid, values, np.nan)
     return values, valid
+
+
+def disparity_spread(image, uv, radius_px: int) -> np.ndarray:
+    """How much a map varies around each position, relative to its value there.
+
+    A keypoint on a depth edge (a corner, where KLT and many detectors put them) reads a
+    disparity that belongs to the foreground or the background by a fraction of a pixel; a
+    fit on such samples pairs a point's depth with the other surface's disparity.
+
+    Args:
+        image: (H, W) float map (e.g. disparity); NaN/inf are invalid pixels.
+        uv: (N, 2) px positions (``(x, y)``, as :func:`sample_bilinear`).
+        radius_px: half-size of the square window, pixels (the window is ``2 r + 1`` wide).
+
+    Returns:
+        (N,) ``(max - min) / |value at the nearest pixel|`` over the window, inf where the
+        window leaves the image or holds an invalid pixel, or ``uv`` is not finite.
+    """
+    img = check_image("image", image)
+    uv = check_array("uv", uv, (None, 2))
+    r = int(radius_px)
+    if r < 0:
+        raise ValueError(f"radius_px must be >= 0, got {radius_px}")
+    h, w = img.shape
+    out = np.full(len(uv), np.inf)
+    with np.errstate(invalid="ignore"):
+        x = np.round(uv[:, 0])
+        y = np.round(uv[:, 1])
+        ok = np.isfinite(x) & np.isfinite(y) & (x >= r) & (x <= w - 1 - r) & (y >= r) & (y <= h - 1 - r)
+    if not ok.any():
+        return out
+    xi, yi = x[ok].astype(np.intp), y[ok].astype(np.intp)
+    d = np.arange(-r, r + 1)
+    win = img[(yi[:, None, None] + d[None, :, None]), (xi[:, None, None] + d[None, None, :])]
+    win = win.reshape(len(xi), -1).astype(np.float64)
+    centre = np.abs(img[yi, xi].astype(np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        spread = (win.max(axis=1) - win.min(axis=1)) / centre
+    out[ok] = np.where(np.isfinite(win).all(axis=1) & (centre > 0), spread, np.inf)
+    return out

@@ -46,6 +46,18 @@ SETTING_RANGES: dict[str, str] = {
     "LearnedMatcherSettings.filter_threshold": "[0, 1)",
     "LearnedMatcherSettings.max_keypoints": "[1, inf)",
     "LearnedMatcherSettings.max_side": "[32, inf)",
+    "KltSettings.max_tracks": "[1, inf)",
+    "KltSettings.min_distance_px": "(0, inf)",
+    "KltSettings.quality": "(0, 1)",
+    "KltSettings.block_size": "[1, inf)",
+    "KltSettings.window_px": "[3, inf)",
+    "KltSettings.pyramid_levels": "[0, inf)",
+    "KltSettings.max_iterations": "[1, inf)",
+    "KltSettings.back_check_px": "[0, inf)",
+    "KltSettings.ransac_px": "(0, inf)",
+    "KltSettings.ransac_hypotheses": "[1, inf)",
+    "KltSettings.border_px": "[0, inf)",
+    "KltSettings.seed": "[0, inf)",
     # pairing
     "PairingSettings.min_rotation_deg": "(0, 180]",
     "PairingSettings.min_translation_m": "(0, inf)",
@@ -81,6 +93,8 @@ SETTING_RANGES: dict[str, str] = {
     "RescalerSettings.max_fallback_age": "[1, inf)",
     "RescalerSettings.max_fallback_error": "(0, inf]",  # inf: no bound (benchmarks/bench_fallback.py)
     "RescalerSettings.max_fit_error": "(0, inf]",  # inf: no bound
+    "RescalerSettings.max_disparity_spread": "(0, inf]",  # None: every point fitted
+    "RescalerSettings.spread_radius_px": "[1, inf)",
     "RansacSettings.inlier_sigmas": "(0, inf)",
     "RansacSettings.model_relative_sigma": "(0, inf)",
     "RansacSettings.min_sigma_disparity": "(0, inf)",
