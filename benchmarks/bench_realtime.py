@@ -70,7 +70,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import realtime_data as data  # noqa: E402
 
-from matchers import SiftSettings  # noqa: E402
+from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
 
@@ -171,9 +171,9 @@ class StreamRunner:
     """Pushes frames of ``ds`` into a fresh :class:`FrameStream`, each with the IMU samples since
     the previous push; times each push; keeps each result's timings and whether it had depth."""
 
-    def __init__(self, ds: data.StreamData):
+    def __init__(self, ds: data.StreamData, matcher: str = "sift"):
         self.ds = ds
-        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing)
+        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher)
         self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind)
         self.imu_done = -np.inf
         self.seconds: list[float] = []
@@ -283,19 +283,20 @@ class Row:
     stages: dict[str, float] | None = None  # mean ms per stage, "other", "total"
     rss_mib: float | None = None
     statuses: dict[str, int] | None = None
+    matcher: str = "-"  # the pipeline's --matcher ("-" for a baseline)
 
     def cells(self) -> list[str]:
         r = self.replay
         lat = 1000 * r.latencies
         p50, p90, p99 = (np.percentile(lat, q) for q in (50, 90, 99)) if len(lat) else (np.nan,) * 3
         baseline = self.with_depth is None
-        return [self.dataset, self.size, self.what, self.mode, str(self.frames), str(len(r.processed)),
+        return [self.dataset, self.size, self.what, self.matcher, self.mode, str(self.frames), str(len(r.processed)),
                 "-" if baseline else str(len(r.dropped)), "-" if baseline or r.afap else str(r.late),
                 "-" if baseline else str(self.with_depth), f"{r.fps:.1f}", f"{p50:.0f}", f"{p90:.0f}", f"{p99:.0f}",
                 "-" if self.rss_mib is None else f"{self.rss_mib:.0f}"]
 
 
-HEADER = ["dataset", "size", "poses / baseline", "mode", "frames", "processed", "dropped", "late", "with depth",
+HEADER = ["dataset", "size", "poses / baseline", "matcher", "mode", "frames", "processed", "dropped", "late", "with depth",
           "frames/s", "latency p50 ms", "p90 ms", "p99 ms", "peak RSS MiB"]
 
 
@@ -307,18 +308,19 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
     return means
 
 
-def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int) -> Row:
+def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
+                 matcher: str = "sift") -> Row:
     if warmup:
-        warm = StreamRunner(ds)
+        warm = StreamRunner(ds, matcher)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds)
+    runner = StreamRunner(ds, matcher)
     reset_peak_rss()
     result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size)
     mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
-               peak_rss_mib(), dict(runner.statuses))
+               peak_rss_mib(), dict(runner.statuses), matcher)
 
 
 def baseline_row(ds: data.StreamData, baseline) -> Row:
@@ -337,10 +339,11 @@ def verdicts(rows: list[Row]) -> list[str]:
     out = []
     for row in rows:
         if row.what == "vio" and row.mode == "afap":
-            rt = [r for r in rows if r.dataset == row.dataset and r.what == "vio" and r.mode == "realtime x1"]
+            rt = [r for r in rows if r.dataset == row.dataset and r.what == "vio" and r.matcher == row.matcher
+                  and r.mode == "realtime x1"]
             ok_fps = row.replay.fps >= 20
             size = row.size if row.size == "752x480" else f"{row.size}, indicative: the target is stated for 752x480"
-            text = f"- {row.dataset} --poses vio ({size}): {row.replay.fps:.1f} frames/s as fast as possible " \
+            text = f"- {row.dataset} --poses vio --matcher {row.matcher} ({size}): {row.replay.fps:.1f} frames/s as fast as possible " \
                    f"({'>=' if ok_fps else '<'} 20)"
             ok = ok_fps
             if rt:
@@ -358,7 +361,8 @@ def verdicts(rows: list[Row]) -> list[str]:
                 out.append(f"- {row.dataset} --poses gt (1242x375): no bare SIFT row (baselines off): not checked")
                 continue
             ratio = row.replay.fps / sift[0].replay.fps
-            out.append(f"- {row.dataset} --poses gt (1242x375): {row.replay.fps:.1f} frames/s = {ratio:.2f} x "
+            out.append(f"- {row.dataset} --poses gt --matcher {row.matcher} (1242x375): {row.replay.fps:.1f} frames/s = "
+                       f"{ratio:.2f} x "
                        f"bare SIFT "
                        f"({sift[0].replay.fps:.1f}) ({'>=' if ratio >= 0.8 else '<'} 0.8): "
                        f"**{'PASS' if ratio >= 0.8 else 'FAIL'}**")
@@ -374,12 +378,19 @@ def main(argv=None) -> int:
     parser.add_argument("--modes", default="realtime,afap", help="realtime (at --rate-scale) and/or afap")
     parser.add_argument("--queue-size", type=int, default=1, help="frames that may wait (oldest dropped when full)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed frames streamed before each pipeline row")
+    parser.add_argument("--matchers", default="sift,klt",
+                        help="the pipeline's --matcher presets, one row set each (sift: today's default; klt: "
+                             "the KLT tracking front end)")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
     names = [n for n in args.datasets.split(",") if n]
     unknown = [n for n in names if n not in data.DATASETS]
     modes = [m for m in args.modes.split(",") if m]
+    matchers = [m for m in args.matchers.split(",") if m]
+    bad = [m for m in matchers if m not in MATCHER_PRESETS]
+    if bad or not matchers:
+        parser.error(f"unknown matcher(s) {', '.join(bad) or '(none)'} (valid: {', '.join(MATCHER_PRESETS)})")
     if unknown:
         parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
     if not modes or not set(modes) <= {"realtime", "afap"}:
@@ -401,10 +412,12 @@ def main(argv=None) -> int:
         rate = (len(ds) - 1) / (ds.timestamps[-1] - ds.timestamps[0]) if len(ds) > 1 else float("nan")
         print(f"\n## {name} ({ds.size}, {len(ds)} frames, {rate:.1f} Hz, --poses {ds.poses}, --pairing "
               f"{ds.pairing}): {ds.description}", flush=True)
-        for mode in modes:
-            row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup)
-            rows.append(row)
-            print(f"  {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
+        for matcher in matchers:
+            for mode in modes:
+                row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
+                                   matcher)
+                rows.append(row)
+                print(f"  {matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:
             for baseline in (BareSift(), BareKlt()):
                 rows.append(baseline_row(ds, baseline))
@@ -413,10 +426,10 @@ def main(argv=None) -> int:
         print("no dataset present: nothing measured")
         return 0
     print("\n" + table(HEADER, [r.cells() for r in rows]))
-    stage_rows = [[r.dataset, r.what, r.mode, *(f"{r.stages[s]:.1f}" for s in (*STAGES, "other", "total"))]
+    stage_rows = [[r.dataset, r.what, r.matcher, r.mode, *(f"{r.stages[s]:.1f}" for s in (*STAGES, "other", "total"))]
                   for r in rows if r.stages is not None]
     print("\nPer stage, mean ms per processed frame (matching and triangulation are parts of points):\n")
-    print(table(["dataset", "poses", "mode", *STAGES, "other", "total"], stage_rows))
+    print(table(["dataset", "poses", "matcher", "mode", *STAGES, "other", "total"], stage_rows))
     print("\nVerdict against issue 24's targets:")
     print("\n".join(verdicts(rows)) or "- no row of a target's kind measured")
     return 0
