@@ -194,7 +194,7 @@ def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
 def test_klt_matcher_and_edge_guard_flags(capsys):
     assert main(["config", "--dump", "--matcher", "klt", "--edge-guard", "0.1"]) == 0
     out = capsys.readouterr().out
-    assert 'preset = "klt"' in out and "max_tracks = 250" in out
+    assert 'preset = "klt"' in out and "max_tracks = 500" in out
     assert "max_disparity_spread = 0.1" in out
     assert main(["config", "--dump", "--edge-guard", "0"]) == 1  # a guard must be positive
     assert "max_disparity_spread" in capsys.readouterr().err
