@@ -59,7 +59,7 @@ import platform
 import sys
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -171,9 +171,11 @@ class StreamRunner:
     """Pushes frames of ``ds`` into a fresh :class:`FrameStream`, each with the IMU samples since
     the previous push; times each push; keeps each result's timings and whether it had depth."""
 
-    def __init__(self, ds: data.StreamData, matcher: str = "sift"):
+    def __init__(self, ds: data.StreamData, matcher: str = "sift", edge_guard: float | None = None):
         self.ds = ds
         settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher)
+        if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
+            settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
         self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind)
         self.imu_done = -np.inf
         self.seconds: list[float] = []
@@ -309,18 +311,18 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
 
 
 def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
-                 matcher: str = "sift") -> Row:
+                 matcher: str = "sift", edge_guard: float | None = None) -> Row:
     if warmup:
-        warm = StreamRunner(ds, matcher)
+        warm = StreamRunner(ds, matcher, edge_guard)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds, matcher)
+    runner = StreamRunner(ds, matcher, edge_guard)
     reset_peak_rss()
     result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size)
     mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
-               peak_rss_mib(), dict(runner.statuses), matcher)
+               peak_rss_mib(), dict(runner.statuses), matcher if edge_guard is None else f"{matcher}, guard {edge_guard:g}")
 
 
 def baseline_row(ds: data.StreamData, baseline) -> Row:
@@ -381,6 +383,8 @@ def main(argv=None) -> int:
     parser.add_argument("--matchers", default="sift,klt",
                         help="the pipeline's --matcher presets, one row set each (sift: today's default; klt: "
                              "the KLT tracking front end)")
+    parser.add_argument("--klt-edge-guard", type=float, default=0.1,
+                        help="the klt rows' --edge-guard (points on depth edges not fitted; the corners sit on them)")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
@@ -415,7 +419,7 @@ def main(argv=None) -> int:
         for matcher in matchers:
             for mode in modes:
                 row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
-                                   matcher)
+                                   matcher, args.klt_edge_guard if matcher == "klt" else None)
                 rows.append(row)
                 print(f"  {matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:
