@@ -119,21 +119,30 @@ class TwoViewPoints:
         when none is, the most precise keyframe within it is used as a weak pair."""
         pairing = self.pairing
         candidates, reasons = [], []
+        qualifying = []  # newest first: beyond the motion thresholds and precise enough
         for kf in self.buffer.newest_first():
             rel = self.pose_source.relative(kf.frame, frame)
             if not rel.ok:
                 reasons.append(rel.reason)
                 continue
             motion = Motion.from_transform(rel.T_kf_cur)
-            candidates.append((kf, rel, motion, self._predicted(frame, kf, rel)))
+            # the precision (the costly part) is predicted only where it can decide: for the
+            # pairs beyond the thresholds until enough qualify; for the others when none does
+            error = self._predicted(frame, kf, rel) if motion.exceeds(pairing) and \
+                len(qualifying) < pairing.pairs_per_frame else None
+            candidates.append([kf, rel, motion, error])
+            if error is not None and error <= pairing.max_pair_error:
+                qualifying.append(candidates[-1])
         if not candidates:
             return None, False, PointsOutcome(FrameStatus.NO_POSE, "; ".join(sorted(set(reasons))) or "no relative pose")
-        precise = [c for c in candidates if c[3] <= pairing.max_pair_error]
-        qualifying = [c for c in precise if c[2].exceeds(pairing)][: pairing.pairs_per_frame]
         if qualifying:
-            return qualifying, False, None
+            return [tuple(c) for c in qualifying], False, None
+        for c in candidates:
+            if c[3] is None:
+                c[3] = self._predicted(frame, c[0], c[1])
+        precise = [c for c in candidates if c[3] <= pairing.max_pair_error]
         if precise and pairing.allow_weak_pairs:
-            return [min(precise, key=lambda c: c[3])], True, None
+            return [tuple(min(precise, key=lambda c: c[3]))], True, None
         best = min(candidates, key=lambda c: c[3])
         m = best[2]
         if not precise:

@@ -108,3 +108,26 @@ def test_without_arrays_keeps_what_a_run_needs_and_no_array():
     assert light.points_uv is None and light.points.sigma is None and len(light.points.uv) == 0
     assert light.points.uv.base is None and light.points.depth.base is None  # not views of the full arrays
     assert len(pickle.dumps(light)) * 3 < len(pickle.dumps(replace(res, depth=None, disparity=None)))
+
+
+def test_pair_precision_is_predicted_only_where_it_decides(monkeypatch):
+    """The predicted precision (a numerical Jacobian per keyframe) was computed for every
+    keyframe of the buffer on every frame; it is needed only for the pairs beyond the motion
+    thresholds until enough qualify, and for all only when none does."""
+    from vio_depth.pipeline import points as points_module
+
+    seq = open_sequence(STREET)
+    calls = []
+    real = points_module.predicted_depth_error
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(points_module, "predicted_depth_error", counting)
+    pipeline = Pipeline(PipelineSettings(), sequence=seq)
+    buffered = 0
+    for i in range(20):
+        buffered += len(pipeline.points.buffer)
+        pipeline.process(seq[i])
+    assert pipeline.points.buffer and len(calls) < 0.5 * buffered
