@@ -13,6 +13,7 @@ module             job
 ``build``          :func:`build_stages`: matcher, pose source, disparity source, points stage from
                    the settings, by explicit calls (:func:`build_pose_stage`, :func:`create_pose_source`)
 ``feed``           a stream's frames and IMU samples, its lazily built ``imu`` / ``vio`` source
+``tracking``       a tracking matcher's (KLT) frames in order, with the rotation predicted
 ``source_landmarks`` :class:`SourceLandmarkPoints`: the same with a relative pose source's factors (imu, vio)
 ``vio_points``     :class:`VioPoints`: the odometry's own landmarks (``--points vio``)
 ``pipeline``       :class:`Pipeline` (``process(frame)`` = ``process_prepared(prepare(frame))``)
@@ -38,6 +39,7 @@ from .settings import POSE_PRESETS, PRESET_FAMILIES, PipelineSettings, PoseSetti
 from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
+from .tracking import TrackedExtraction
 from .vio_points import VioPoints
 
 __all__ = [
@@ -62,6 +64,7 @@ __all__ = [
     "PreparedFrame",
     "SourceLandmarkPoints",
     "Stages",
+    "TrackedExtraction",
     "TwoViewPoints",
     "build_matcher",
     "build_points_stage",

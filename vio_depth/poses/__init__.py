@@ -12,6 +12,7 @@ module             job
 ``uncertainty``    :class:`PoseUncertainty`: what a sequence's poses get wrong, presets by kind
 ``timeline``       :class:`PoseTimeline`: a sequence's poses as a function of time (splines)
 ``calibration``    time offset and camera-to-body transform of the poses, from the images
+``gyro``           the camera's rotation between two frames from the gyroscope (KLT prediction)
 =================  ===========================================================================
 
 The presets (``--poses``: :data:`vio_depth.pipeline.POSE_PRESETS`) and the choice of a source
@@ -30,6 +31,7 @@ from .calibration import (
 )
 from .calibration_solver import PairMatches
 from .groundtruth import GroundTruthPoses, GroundTruthPoseSettings
+from .gyro import camera_rotation, gyro_rotation
 from .imu import ImuPoseSource
 from .imu_state import ImuPoseSettings, NavEstimate
 from .preintegration import (
@@ -48,6 +50,8 @@ from .uncertainty import POSE_UNCERTAINTY_PRESETS, FrameTwist, PoseUncertainty, 
 
 __all__ = [
     "POSE_UNCERTAINTY_PRESETS",
+    "camera_rotation",
+    "gyro_rotation",
     "FrameTwist",
     "PoseUncertainty",
     "camera_twist",
