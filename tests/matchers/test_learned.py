@@ -345,7 +345,7 @@ def test_internal_resize_equals_external_resize_plus_mapping(built, pair, name):
 
 
 def test_settings_and_presets():
-    assert set(matchers.MATCHER_PRESETS) == set(PRESET_NAMES) | {"sift"}
+    assert set(matchers.MATCHER_PRESETS) == set(PRESET_NAMES) | {"sift", "klt"}
     s = matchers.MATCHER_PRESETS.get_preset("xfeat+lighterglue", max_side=512)
     assert s.max_side == 512 and s.extractor == "xfeat" and s.name == "xfeat+lighterglue"
     assert matchers.MATCHER_PRESETS["disk+lightglue"].max_side == 1024
