@@ -54,6 +54,7 @@ from vio_core.geometry import invert_transform
 
 from .covariance import PoseCovariances, prior_covariance
 from .graph import WindowGraph, select_landmarks
+from .incremental import merge_points, reusable_tracks
 from .motion import MotionFactorSource, PosePriorFactors
 from .query import query_frame
 from .settings import LandmarkSettings
@@ -96,6 +97,7 @@ class LandmarkWindow:
         self._cov = PoseCovariances()
         self._landmarks: MultiviewPoints | None = None
         self._obs: Observations | None = None  # observations behind self._landmarks
+        self._pre = None  # (observations, MultiviewPoints) before the refinement in progress
 
     # ------------------------------------------------------------------ state
     @property
@@ -203,8 +205,12 @@ class LandmarkWindow:
             # the new oldest keyframe, so that the window cannot drift along them
             self._graph.add_factors(self.motion_factors.after_marginalisation(next(iter(self._kf)),
                                                                               self._graph.values))
-        # the landmarks of the (possibly shrunk) window at the refined poses and covariances
-        _, lm = self._triangulate()
+        # the landmarks of the (possibly shrunk) window at the refined poses and covariances:
+        # every track seen by the keyframes the next frames are matched with (what queries
+        # read); the others keep their triangulation from before the refinement unless
+        # they changed
+        _, lm = self._triangulate(self._pre, self.keyframe_ids[-self.settings.match_keyframes:])
+        self._pre = None
         self._landmarks = lm
         good = lm.inlier & lm.valid[lm.obs_track]
         return WindowUpdate(**{**update.__dict__, "marginalised": marg, "keyframes": len(self._kf),
@@ -213,14 +219,27 @@ class LandmarkWindow:
                                else float("nan")})
 
     # ------------------------------------------------------------------ optimisation
-    def _triangulate(self):
+    def _triangulate(self, previous=None, fresh_frames=()):
+        """Triangulate the window's tracks (min_track_length observations or more).
+
+        ``previous``: ``(observations, MultiviewPoints)`` of an earlier triangulation, or
+        None. Its result is kept for the tracks whose observations did not change since
+        and that have no observation in a keyframe of ``fresh_frames``; the others are
+        triangulated at the current poses and covariances (:mod:`.incremental`).
+        """
         obs = self.tracks.observations(min_length=self.settings.min_track_length)
         ids = self.keyframe_ids
         T = np.stack([self.pose(f) for f in ids])
         C = self.relative_covariances()
         cams = [self._kf[f].info.camera for f in ids]
         view = np.searchsorted(np.array(ids), obs.frame) if len(obs) else np.zeros(0, np.int64)
-        res = triangulate_tracks(obs.track, view, obs.uv, cams, T, self.settings.multiview, C)
+        fresh = np.ones(len(obs), bool)
+        if previous is not None:
+            fresh = ~reusable_tracks(obs, *previous)
+            fresh |= np.isin(obs.track, obs.track[np.isin(obs.frame, list(fresh_frames))])
+        res = triangulate_tracks(obs.track[fresh], view[fresh], obs.uv[fresh], cams, T, self.settings.multiview, C)
+        if not fresh.all():
+            res = merge_points(obs, fresh, res, *previous)
         self._obs = obs
         return obs, res
 
@@ -232,7 +251,10 @@ class LandmarkWindow:
             for f, k in self._kf.items():
                 if k.info.T_w_c is not None:
                     self._graph.set_pose(f, k.info.T_w_c)
-        obs, mv = self._triangulate()
+        # the tracks the new keyframe did not change keep the last update's triangulation
+        previous = None if self._landmarks is None else (self._obs, self._landmarks)
+        obs, mv = self._triangulate(previous, [new_id])
+        self._pre = (obs, mv)
         # per-track outlier rejection: observations outside the gate leave their track
         out = ~mv.inlier & (mv.status[mv.obs_track] != TrackStatus.TOO_FEW_VIEWS)
         out &= np.isin(mv.status[mv.obs_track], (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))

@@ -61,10 +61,12 @@ class FrameBridges:
         """Pose the bridged frames again from the window's latest estimate (``times``: seconds of
         the keyframes); frames whose keyframes left the window are kept as they are."""
         ids = window.keyframe_ids
+        est = window.estimate
+        pairs: dict = {}  # per keyframe pair: what all its frames share (computed once per refresh)
         keep = []
         for f, t, a, b in self._bridged:
             if a in ids and b in ids:
-                T, C = self.pose(window, times, t, a, b)
+                T, C = self._pose(window, est, times, t, a, b, pairs)
                 if T is not None:  # anchored to the later keyframe, which stays in the window longer
                     history.add_frame(f, session, b, T, C)
                 keep.append((f, t, a, b))
@@ -79,16 +81,27 @@ class FrameBridges:
         ``(1 - s)^2`` of the relative uncertainty of ``a`` and ``b`` (``s`` the fraction of
         the interval elapsed at ``t``).
         """
-        w = window
-        est = w.estimate
-        st = self.factors.state_of(est, a, times[a])
+        return self._pose(window, window.estimate, times, t, a, b, {})
+
+    def _pose(self, w: LandmarkWindow, est, times: Mapping[int, float], t: float, a: int, b: int, pairs: dict):
+        """:meth:`pose` with the window's estimate ``est`` and a cache ``pairs`` of the
+        quantities shared by the frames between ``a`` and ``b``."""
+        if (a, b) not in pairs:
+            st = self.factors.state_of(est, a, times[a])
+            end_b, _, _ = self.factors.predict(st, times[b])
+            T_b = C_ab = None
+            if end_b is not None:
+                T_b = self.factors.state_of(est, b, times[b]).T_w_i
+                C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
+            pairs[(a, b)] = (st, end_b, T_b, C_ab)
+        st, end_b, T_b, C_ab = pairs[(a, b)]
+        if end_b is None:
+            return None, None
         t_b = times[b]
         end, _, _ = self.factors.predict(st, t)
-        end_b, _, _ = self.factors.predict(st, t_b)
-        if end is None or end_b is None:
+        if end is None:
             return None, None
         _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
-        T_b = self.factors.state_of(est, b, t_b).T_w_i
         s = (t - st.t) / max(t_b - st.t, 1e-12)
         dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
         T = end.T_w_i.copy()
@@ -98,7 +111,5 @@ class FrameBridges:
         T_f_b = invert_transform(T_w_f) @ w.pose(b)
         A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
         C = A @ C_fb @ A.T
-        S = w.joint_covariance([a, b])
-        C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
         C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
         return T_w_f, 0.5 * (C + C.T)
