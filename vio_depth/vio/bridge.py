@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vio_core.geometry import invert_transform
@@ -20,6 +21,10 @@ from ..landmarks import LandmarkWindow
 from ..poses import adjoint
 from .history import PoseHistory
 from .imu_factors import ImuFactors
+
+#: biases (accelerometer m/s^2, gyroscope rad/s) beyond which a kept preintegration is
+#: integrated again rather than corrected to first order
+_REINTEGRATE = (0.05, 0.005)
 
 
 class FrameBridges:
@@ -35,11 +40,16 @@ class FrameBridges:
         # and those still waiting for the keyframe after: (frame, t, keyframe before)
         self._bridged: list[tuple[int, float, int, int]] = []
         self._unbridged: list[tuple[int, float, int]] = []
+        # per (start, end) time: the preintegration (with the biases it was integrated at)
+        # and the motion noise, kept while the frames are bridged
+        self._pims: dict = {}
+        self._motion_cov: dict = {}
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
         (``(id, t seconds)`` each); a frame between two keyframes is bridged between them."""
         self._bridged, self._unbridged = [], []
+        self._pims, self._motion_cov = {}, {}
         for f, t in frames:
             before = [k for k, kt in keyframes if kt <= t]
             after = [k for k, kt in keyframes if kt > t]
@@ -71,6 +81,10 @@ class FrameBridges:
                     history.add_frame(f, session, b, T, C)
                 keep.append((f, t, a, b))
         self._bridged = keep
+        starts = {times[a] for _, _, a, _ in keep}
+        ends = {times[b] for _, _, _, b in keep}
+        self._pims = {k: v for k, v in self._pims.items() if k[0] in starts}
+        self._motion_cov = {k: v for k, v in self._motion_cov.items() if k[1] in ends}
 
     def pose(self, window: LandmarkWindow, times: Mapping[int, float], t: float, a: int, b: int):
         """Camera pose (4, 4) of a frame at ``t`` between keyframes ``a`` and ``b`` and its
@@ -88,7 +102,7 @@ class FrameBridges:
         quantities shared by the frames between ``a`` and ``b``."""
         if (a, b) not in pairs:
             st = self.factors.state_of(est, a, times[a])
-            end_b, _, _ = self.factors.predict(st, times[b])
+            end_b, _, _ = self._predict(st, times[b])
             T_b = C_ab = None
             if end_b is not None:
                 T_b = self.factors.state_of(est, b, times[b]).T_w_i
@@ -98,10 +112,12 @@ class FrameBridges:
         if end_b is None:
             return None, None
         t_b = times[b]
-        end, _, _ = self.factors.predict(st, t)
+        end, _, _ = self._predict(st, t)
         if end is None:
             return None, None
-        _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
+        if (t, t_b) not in self._motion_cov:  # noise of the camera's motion from t to b, in b
+            self._motion_cov[(t, t_b)] = self.factors.predict(end, t_b)[1]
+        C_fb = self._motion_cov[(t, t_b)]
         s = (t - st.t) / max(t_b - st.t, 1e-12)
         dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
         T = end.T_w_i.copy()
@@ -113,3 +129,18 @@ class FrameBridges:
         C = A @ C_fb @ A.T
         C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
         return T_w_f, 0.5 * (C + C.T)
+
+    def _predict(self, state, t: float):
+        """The IMU prediction from ``state`` to ``t``; the samples are integrated once per
+        interval and again only when the biases moved by more than ``_REINTEGRATE`` since."""
+        key = (state.t, t)
+        hit = self._pims.get(key)
+        if hit is not None and (np.linalg.norm(state.accel_bias - hit[1]) > _REINTEGRATE[0]
+                                or np.linalg.norm(state.gyro_bias - hit[2]) > _REINTEGRATE[1]):
+            hit = None
+        if hit is None:
+            pim, reason = self.factors.preintegrate(state, t)
+            if pim is None:
+                return None, None, reason
+            hit = self._pims[key] = (pim, state.accel_bias.copy(), state.gyro_bias.copy())
+        return self.factors.predict_with(hit[0], state, t)
