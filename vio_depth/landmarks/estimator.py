@@ -95,8 +95,10 @@ class LandmarkEstimator:
         C_cur[:3, :] = C_cur[:, :3] = 0.0  # drop rotation and its cross terms
         C_cur[:3, :3] = np.minimum(np.diag(np.diag(points.covariance[:3, :3])), rot_var * np.eye(3))
         C = np.stack([1e-12 * np.eye(6), C_cur])
-        n = len(m)
-        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe], keypoints[m.idx_frame]])
+        # a median over an evenly spaced subset of the matches (parallax_max_matches)
+        pick = np.unique(np.linspace(0, len(m) - 1, min(len(m), self.settings.parallax_max_matches)).astype(np.int64))
+        n = len(pick)
+        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]]])
         res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf.camera, camera],
                                  np.stack([T_kf, T_cur]), self.settings.multiview, C)
         ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))
