@@ -138,10 +138,6 @@ class LandmarkSettings:
         keyframe_min_tracked_fraction: ... or when fewer than this fraction of the
             newest keyframe's tracked landmarks are found in the frame (the view changed).
         max_keyframe_gap: ... or when this many frames passed since the newest keyframe.
-        parallax_max_matches: the median relative depth sigma of the parallax test is
-            taken over at most this many of the matches (evenly spaced in the matcher's
-            order): a median of a few hundred is as good a decision as one of thousands,
-            at a fraction of the triangulation.
         ba_max_landmarks: most landmarks in the graph (the longest tracks, then the most
             certain); every track is triangulated at the refined poses afterwards.
         lm_max_iterations: Levenberg-Marquardt iterations per keyframe.
@@ -163,7 +159,6 @@ class LandmarkSettings:
     keyframe_relative_sigma: float = 0.25
     keyframe_min_tracked_fraction: float = 0.5
     max_keyframe_gap: int = 30
-    parallax_max_matches: int = 300
     ba_max_landmarks: int = 800
     lm_max_iterations: int = 15
     restart_from_priors: bool = True
@@ -181,8 +176,6 @@ class LandmarkSettings:
             raise SettingsError("keyframe_min_tracked_fraction must be in [0, 1]")
         if self.ba_max_landmarks < 1:
             raise SettingsError("ba_max_landmarks must be >= 1")
-        if self.parallax_max_matches < 5:
-            raise SettingsError("parallax_max_matches must be >= 5")
         if self.max_keyframe_gap < 1 or self.lm_max_iterations < 1 or self.query_max_iterations < 0:
             raise SettingsError("max_keyframe_gap and lm_max_iterations must be >= 1, query_max_iterations >= 0")
         if self.min_query_points < 3:
