@@ -12,7 +12,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
    its reason; the window is unchanged);
 3. every track with two or more observations is triangulated over the window
    (:func:`triangulation.multiview.triangulate_tracks`, with the poses' current
-   uncertainty); its outlier observations are split off the track, and the VALID ones
+   uncertainty) -- again only where the new keyframe changed the track; an unchanged track
+   keeps the last update's result (:mod:`.incremental`); its outlier observations are split
+   off the track, and the VALID ones
    become ``Point3`` landmarks with ``GenericProjectionFactorCal3DS2`` factors (raw pixels,
    the camera's distortion; Huber kernel);
 4. Levenberg-Marquardt refines poses and landmarks together (:mod:`.graph`); the scale is
@@ -20,7 +22,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
 5. the keyframe poses' joint marginal covariance comes from ``gtsam.Marginals``
    (bookkeeping: :mod:`.covariance`), and each
    landmark's point, covariance and depth (with sigma) in every keyframe observing it
-   from a final multi-view triangulation at the refined poses with those covariances;
+   from a final multi-view triangulation at the refined poses with those covariances (of
+   the tracks seen by the newest ``match_keyframes`` keyframes, which the next frames are
+   matched with, and of the tracks that changed; the others keep their last result);
 6. beyond ``window_keyframes`` the oldest keyframe is **marginalised** (:mod:`.marginalisation`):
    its projection factors are dropped (their landmarks keep their other observations;
    OKVIS-style, to keep the graph sparse), and its other factors (motion factors,
