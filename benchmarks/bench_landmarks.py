@@ -34,6 +34,10 @@ disparity on the same frames; ``x oracle`` their ratio; ``depth``: frames given 
 frames processed; ``bad ok``: frames with status ok whose AbsRel exceeds 2 x their own
 oracle + 0.02.
 
+``s/fr``: the run's median pipeline seconds per frame; ``pts ms``: the points stage's mean
+milliseconds per frame (matching, the landmark window or the two-view pairs, triangulation:
+what the two paths do differently).
+
 Run: ``python benchmarks/bench_landmarks.py [--datasets 7scenes,kitti,street,room]
 [--frames N] [--data DIR] [--paths two-view,landmarks]``. Seconds per frame are printed
 (the run's median pipeline time): compare them only within one run.
@@ -98,6 +102,11 @@ def _median(values) -> float:
     return float(np.median(values)) if values else float("nan")
 
 
+def _mean_ms(values) -> float:
+    values = [v for v in values if v is not None]
+    return 1000.0 * float(np.mean(values)) if values else float("nan")
+
+
 def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
     row = metrics["metrics"].get(PATHS[path], {})
     oracle = metrics["metrics"].get("oracle", {})
@@ -111,7 +120,8 @@ def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
             f"{_median(f['triangulated_points'] for f in frames):6.0f} {row.get('abs_rel', float('nan')):7.4f} "
             f"{row.get('delta1', float('nan')):7.4f} {oracle.get('abs_rel', float('nan')):7.4f} {ratio:8.2f} "
             f"{metrics['frames_with_depth']:4d}/{metrics['frames_processed']:<4d} {len(bad):5d} "
-            f"{_median(f['seconds'] for f in frames):6.3f}")
+            f"{_median(f['seconds'] for f in frames):6.3f} "
+            f"{_mean_ms(f.get('timings', {}).get('points') for f in frames):7.1f}")
     line += f"\n  {path} statuses: {statuses}"
     if bad:
         line += f"\n  {path} ok frames above 2 x oracle + 0.02: {bad[:40]}" + (" ..." if len(bad) > 40 else "")
@@ -129,7 +139,7 @@ def main(argv=None) -> int:
           f"python {platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.1f}")
     print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
     head = (f"{'path':10s} {'pt med':>7s} {'pt p90':>7s} {'bias':>7s} {'pts/fr':>6s} {'AbsRel':>7s} "
-            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s}")
+            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s} {'pts ms':>7s}")
     for name in args.datasets.split(","):
         ds = DATASETS[name]
         folder = ds.folder(args.data)

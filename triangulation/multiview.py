@@ -324,71 +324,89 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     # whitening of each observation: pixel noise + image motion from pose uncertainty
     cov_v = None if cov is None else cov[view]
 
-    def obs_info(p_c):
-        Jp = _projection_jacobian(p_c, fx, fy)
-        S = np.zeros((m, 2, 2))
+    def obs_info(p_c, o=slice(None)):
+        """Projection Jacobians, whitening and pose Jacobians of the observations ``o``."""
+        Jp = _projection_jacobian(p_c, fx[o], fy[o])
+        S = np.zeros((len(p_c), 2, 2))
         S[:, 0, 0] = S[:, 1, 1] = s.pixel_sigma_px**2
         J_pose = None
         if cov is not None:
             J_pose = Jp @ pose_jacobian(p_c)  # (M, 2, 6) pixels per pose tangent unit
-            S = S + J_pose @ cov_v @ np.transpose(J_pose, (0, 2, 1))
+            S = S + J_pose @ cov_v[o] @ np.transpose(J_pose, (0, 2, 1))
         return Jp, _inv2(S), J_pose
 
-    def residuals(X):
-        p_c = (R_cw @ (X[t] - centres)[:, :, None])[:, :, 0]
+    def residuals(X, o=slice(None)):
+        """Camera points and ideal-pixel residuals of the observations ``o`` at points ``X``."""
+        p_c = np.einsum("nij,nj->ni", R_cw[o], X[t[o]] - centres[o])
         with np.errstate(divide="ignore", invalid="ignore"):
-            proj = np.column_stack([fx * p_c[:, 0] / p_c[:, 2] + cx, fy * p_c[:, 1] / p_c[:, 2] + cy])
-        return p_c, proj - ideal
+            proj = np.column_stack([fx[o] * p_c[:, 0] / p_c[:, 2] + cx[o], fy[o] * p_c[:, 1] / p_c[:, 2] + cy[o]])
+        return p_c, proj - ideal[o]
 
-    def track_cost(r, S_inv, use):
-        e = _quad2(r, S_inv)
-        return _sum_by(t, np.where(use & np.isfinite(e), e, 0.0), n_tracks), e
-
+    # Only the tracks that can still change are computed: a Gauss-Newton step rejected once
+    # would be rejected again (the whitening is fixed within a round), a track that stopped
+    # moving has converged, and after an outlier round only the tracks that lost an
+    # observation are solved again (the others' inliers and estimate are unchanged).
     active = status == TrackStatus.VALID
+    solve = active.copy()
+    S_inv = np.zeros((m, 2, 2))
+    o = np.nonzero(solve[t])[0]  # observations of the tracks solved in this round
+    p_c, _ = residuals(X, o)
+    S_inv[o] = obs_info(p_c, o)[1]
     for round_ in range(s.outlier_rounds + 1):
         # --- Gauss-Newton on the whitened reprojection error (the whitening is fixed within
         # a round: it depends on the point only through the pose term, slowly)
-        p_c, r = residuals(X)
-        _, S_inv, _ = obs_info(p_c)
+        moving = solve.copy()
         for _ in range(_GN_ITERATIONS):
-            p_c, r = residuals(X)
-            Jp = _projection_jacobian(p_c, fx, fy)
-            use = inlier & active[t] & (p_c[:, 2] > 0)
-            J = Jp @ R_cw  # (M, 2, 3) d pixel / d X
-            JtS = np.transpose(J, (0, 2, 1)) @ S_inv
-            wts = use.astype(float)
-            H = _sum_by(t, wts[:, None, None] * (JtS @ J), n_tracks)
-            g = _sum_by(t, wts[:, None] * (JtS @ np.nan_to_num(r)[:, :, None])[:, :, 0], n_tracks)
-            step, solvable = _solve3(H, -g)
-            cost0, _ = track_cost(r, S_inv, use)
-            X_new = np.where((solvable & active)[:, None], X + np.nan_to_num(step), X)
-            p_new, r_new = residuals(X_new)
-            cost1, _ = track_cost(r_new, S_inv, use & (p_new[:, 2] > 0))
-            better = solvable & active & (cost1 <= cost0) & np.all(np.isfinite(X_new), axis=1)
-            X = np.where(better[:, None], X_new, X)
-            # converged: no track moved by more than 1e-7 of its distance to the cameras
-            moved = np.where(better, np.linalg.norm(np.nan_to_num(step), axis=1), 0.0)
-            scale = np.maximum(np.sqrt(_sum_by(t, np.sum((X[t] - centres) ** 2, 1), n_tracks)
-                                       / np.maximum(n_obs, 1)), 1e-9)
-            if not np.any(moved > 1e-7 * scale):
+            rows = np.nonzero(moving)[0]
+            if not len(rows):
                 break
+            o = np.nonzero(moving[t])[0]
+            tc = (np.cumsum(moving) - 1)[t[o]]  # compact track index of each observation
+            n = len(rows)
+            p_c, r = residuals(X, o)
+            Jp = _projection_jacobian(p_c, fx[o], fy[o])
+            use = inlier[o] & (p_c[:, 2] > 0)
+            J = Jp @ R_cw[o]  # (M, 2, 3) d pixel / d X
+            JtS = np.transpose(J, (0, 2, 1)) @ S_inv[o]
+            wts = use.astype(float)
+            H = _sum_by(tc, wts[:, None, None] * (JtS @ J), n)
+            g = _sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, np.nan_to_num(r)), n)
+            step, solvable = _solve3(H, -g)
+            e0 = _quad2(r, S_inv[o])
+            cost0 = np.bincount(tc, weights=np.where(use & np.isfinite(e0), e0, 0.0), minlength=n)
+            X_new = X.copy()
+            X_new[rows] = np.where(solvable[:, None], X[rows] + np.nan_to_num(step), X[rows])
+            p_new, r_new = residuals(X_new, o)
+            e1 = _quad2(r_new, S_inv[o])
+            use1 = use & (p_new[:, 2] > 0) & np.isfinite(e1)
+            cost1 = np.bincount(tc, weights=np.where(use1, e1, 0.0), minlength=n)
+            better = solvable & (cost1 <= cost0) & np.all(np.isfinite(X_new[rows]), axis=1)
+            X[rows[better]] = X_new[rows[better]]
+            # converged: the track moved by at most 1e-7 of its distance to the cameras
+            dist2 = np.bincount(tc, weights=np.sum((X[t[o]] - centres[o]) ** 2, 1), minlength=n)
+            scale = np.maximum(np.sqrt(dist2 / np.maximum(n_obs[rows], 1)), 1e-9)
+            moving[rows] = better & (np.linalg.norm(np.nan_to_num(step), axis=1) > 1e-7 * scale)
         if round_ == s.outlier_rounds:
             break
         # --- drop the worst outlier of each track that has one
-        p_c, r = residuals(X)
-        _, S_inv, _ = obs_info(p_c)
-        e = _quad2(np.nan_to_num(r, nan=1e6), S_inv)
+        o = np.nonzero(solve[t])[0]
+        p_c, r = residuals(X, o)
+        S_inv[o] = obs_info(p_c, o)[1]
+        e = _quad2(np.nan_to_num(r, nan=1e6), S_inv[o])
         e = np.where(p_c[:, 2] > 0, e, np.inf)
-        bad = inlier & active[t] & (e > s.max_residual_sigmas**2)
+        bad = inlier[o] & (e > s.max_residual_sigmas**2)
         if not bad.any():
             break
         worst = np.full(n_tracks, -1.0)
-        np.maximum.at(worst, t[bad], e[bad])
-        drop = bad & (e == worst[t])
-        inlier &= ~drop
+        np.maximum.at(worst, t[o][bad], e[bad])
+        drop = o[bad & (e == worst[t[o]])]
+        inlier[drop] = False
         n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks)
         mark(active & (n_in < 2), TrackStatus.REPROJECTION)
         active = status == TrackStatus.VALID
+        solve = np.zeros(n_tracks, bool)
+        solve[t[drop]] = True
+        solve &= active
 
     # --- final residuals, gate, covariance, per-observation depth and sigma
     p_c, r = residuals(X)
@@ -418,14 +436,15 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     depth = p_c[:, 2]
     a = R_cw[:, 2, :]  # dz/dX
     C = cov_w[t]
-    var = np.einsum("ni,nij,nj->n", a, np.nan_to_num(C), a)
+    var = np.einsum("ni,ni->n", a, np.einsum("nij,nj->ni", np.nan_to_num(C), a))
     if cov is not None:
         b = pose_jacobian(p_c)[:, 2, :]  # dz/dxi
         Sv = cov[view]
-        var = var + np.einsum("ni,nij,nj->n", b, Sv, b)
+        var = var + np.einsum("ni,ni->n", b, np.einsum("nij,nj->ni", Sv, b))
         # cross term: the point was estimated from this view's (uncertain) pose
         A = np.nan_to_num(C) @ JtS  # (M, 3, 2)
-        cross = np.einsum("ni,nij,njk,nkl,nl->n", a, A, J_pose, Sv, b)
+        Sb = np.einsum("nkl,nl->nk", Sv, b)  # pairwise contractions: one 5-operand einsum is 10x slower
+        cross = np.einsum("nk,nk->n", np.einsum("nj,njk->nk", np.einsum("ni,nij->nj", a, A), J_pose), Sb)
         var = var + 2.0 * np.where(inlier, cross, 0.0)
     sigma = np.sqrt(np.maximum(var, 0.0))
 

@@ -98,6 +98,26 @@ def test_outlier_observation_is_dropped_and_track_kept():
     assert np.linalg.norm(res.points_w[7] - P[7]) < 0.05 * P[7, 2]
 
 
+def test_each_track_is_solved_as_if_alone():
+    """Tracks are iterated only while they move and re-solved only when they lose an outlier:
+    a batch with noisy tracks, outliers and pose uncertainty gives each track the result it
+    gets when triangulated alone."""
+    T, P = _poses(5), _points(40)
+    track, view, uv = _observe(P, T, sigma=0.5, seed=4)
+    for k in (3, 11, 12, 30):
+        uv[np.nonzero((track == k) & (view == k % 5))[0][0]] += [20.0, -12.0]
+    cov = np.tile(np.diag([0.002**2] * 3 + [1e-4] * 3), (5, 1, 1))
+    batch = triangulate_tracks(track, view, uv, CAM, T, MultiviewSettings(), cov)
+    for k in range(40):
+        sel = track == k
+        alone = triangulate_tracks(track[sel], view[sel], uv[sel], CAM, T, MultiviewSettings(), cov)
+        assert alone.status[0] == batch.status[k]
+        np.testing.assert_array_equal(alone.inlier, batch.inlier[sel])
+        np.testing.assert_allclose(alone.points_w[0], batch.points_w[k], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(alone.sigma_depth, batch.sigma_depth[sel], rtol=1e-9)
+    assert not batch.inlier[np.nonzero((track == 3) & (view == 3))[0][0]]
+
+
 def test_two_views_that_disagree_are_rejected():
     T, P = _poses(2), _points(10)
     track, view, uv = _observe(P, T)

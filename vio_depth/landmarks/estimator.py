@@ -31,6 +31,12 @@ from .tracks import FrameMatches
 from .types import KeyframeInput, LandmarkPoints, WindowUpdate
 from .window import LandmarkWindow
 
+#: the keyframe parallax test takes its median relative depth sigma over at most this many
+#: of the frame's matches with the newest keyframe (evenly spaced in the matcher's order): a
+#: median of a few hundred decides as well as one of thousands, at a fraction of the
+#: triangulation (a constant, not a setting: the settings are written into every output)
+PARALLAX_MAX_MATCHES = 300
+
 
 @dataclass(frozen=True)
 class FrameLandmarks:
@@ -95,8 +101,10 @@ class LandmarkEstimator:
         C_cur[:3, :] = C_cur[:, :3] = 0.0  # drop rotation and its cross terms
         C_cur[:3, :3] = np.minimum(np.diag(np.diag(points.covariance[:3, :3])), rot_var * np.eye(3))
         C = np.stack([1e-12 * np.eye(6), C_cur])
-        n = len(m)
-        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe], keypoints[m.idx_frame]])
+        # a median over an evenly spaced subset of the matches (PARALLAX_MAX_MATCHES)
+        pick = np.unique(np.linspace(0, len(m) - 1, min(len(m), PARALLAX_MAX_MATCHES)).astype(np.int64))
+        n = len(pick)
+        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]]])
         res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf.camera, camera],
                                  np.stack([T_kf, T_cur]), self.settings.multiview, C)
         ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))

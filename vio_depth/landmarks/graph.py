@@ -137,24 +137,30 @@ class WindowGraph:
         for _, f in self.factors:
             graph.add(f)
         values = self.non_landmark_values()
-        for r in np.nonzero(in_graph)[0]:
-            values.insert(L(int(mv.track_ids[r])), gtsam.Point3(*mv.points_w[r]))
+        rows = np.nonzero(in_graph)[0]
+        for tid, p in zip(mv.track_ids[rows].tolist(), mv.points_w[rows]):
+            values.insert(L(tid), gtsam.Point3(p))
         pix = s.multiview.pixel_sigma_px
         robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(s.huber_sigmas),
                                                 gtsam.noiseModel.Isotropic.Sigma(2, pix))
-        cals = {f: calibration(cam) for f, cam in cameras.items()}
+        # one projection factor per used observation; the keys and pixels are converted to
+        # Python/gtsam objects per keyframe in bulk (the factor loop is the refinement's
+        # Python cost)
         idx = np.nonzero(use)[0]
         tids = mv.track_ids[mv.obs_track[idx]]
-        for i, tid in zip(idx, tids):
-            f = int(obs.frame[i])
-            cal = cals[f]
-            if cal is None:
-                cam = cameras[f]
-                uv = cam.undistort_points(obs.uv[i:i + 1])[0]
-                cal_use = gtsam.Cal3DS2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, 0.0, 0.0, 0.0, 0.0)
-            else:
-                uv, cal_use = obs.uv[i], cal
-            graph.add(gtsam.GenericProjectionFactorCal3DS2(np.asarray(uv, float), robust, X(f), L(int(tid)), cal_use))
+        frames = obs.frame[idx]
+        for f, cam in cameras.items():
+            sel = frames == f
+            if not sel.any():
+                continue
+            cal = calibration(cam)
+            uv = obs.uv[idx[sel]]
+            if cal is None:  # ideal pixels with an undistorted calibration
+                uv = cam.undistort_points(uv)
+                cal = gtsam.Cal3DS2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, 0.0, 0.0, 0.0, 0.0)
+            x = X(int(f))
+            for tid, p in zip(tids[sel].tolist(), np.asarray(uv, float)):
+                graph.add(gtsam.GenericProjectionFactorCal3DS2(p, robust, x, L(tid), cal))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(s.lm_max_iterations)
         before = graph.error(values)

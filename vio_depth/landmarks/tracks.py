@@ -81,6 +81,10 @@ class Observations:
     def __len__(self) -> int:
         return len(self.track)
 
+    def take(self, rows) -> "Observations":
+        """The observations ``rows`` (a bool mask or indices), in order."""
+        return Observations(self.track[rows], self.frame[rows], self.keypoint[rows], self.uv[rows])
+
 
 class TrackTable:
     """Tracks over a bounded set of keyframes (see the module docstring)."""

@@ -12,7 +12,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
    its reason; the window is unchanged);
 3. every track with two or more observations is triangulated over the window
    (:func:`triangulation.multiview.triangulate_tracks`, with the poses' current
-   uncertainty); its outlier observations are split off the track, and the VALID ones
+   uncertainty) -- again only where the new keyframe changed the track; an unchanged track
+   keeps the last update's result (:mod:`.incremental`); its outlier observations are split
+   off the track, and the VALID ones
    become ``Point3`` landmarks with ``GenericProjectionFactorCal3DS2`` factors (raw pixels,
    the camera's distortion; Huber kernel);
 4. Levenberg-Marquardt refines poses and landmarks together (:mod:`.graph`); the scale is
@@ -20,7 +22,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
 5. the keyframe poses' joint marginal covariance comes from ``gtsam.Marginals``
    (bookkeeping: :mod:`.covariance`), and each
    landmark's point, covariance and depth (with sigma) in every keyframe observing it
-   from a final multi-view triangulation at the refined poses with those covariances;
+   from a final multi-view triangulation at the refined poses with those covariances (of
+   the tracks seen by the newest ``match_keyframes`` keyframes, which the next frames are
+   matched with, and of the tracks that changed; the others keep their last result);
 6. beyond ``window_keyframes`` the oldest keyframe is **marginalised** (:mod:`.marginalisation`):
    its projection factors are dropped (their landmarks keep their other observations;
    OKVIS-style, to keep the graph sparse), and its other factors (motion factors,
@@ -54,6 +58,7 @@ from vio_core.geometry import invert_transform
 
 from .covariance import PoseCovariances, prior_covariance
 from .graph import WindowGraph, select_landmarks
+from .incremental import merge_points, reusable_tracks
 from .motion import MotionFactorSource, PosePriorFactors
 from .query import query_frame
 from .settings import LandmarkSettings
@@ -96,6 +101,7 @@ class LandmarkWindow:
         self._cov = PoseCovariances()
         self._landmarks: MultiviewPoints | None = None
         self._obs: Observations | None = None  # observations behind self._landmarks
+        self._pre = None  # (observations, MultiviewPoints) before the refinement in progress
 
     # ------------------------------------------------------------------ state
     @property
@@ -203,8 +209,12 @@ class LandmarkWindow:
             # the new oldest keyframe, so that the window cannot drift along them
             self._graph.add_factors(self.motion_factors.after_marginalisation(next(iter(self._kf)),
                                                                               self._graph.values))
-        # the landmarks of the (possibly shrunk) window at the refined poses and covariances
-        _, lm = self._triangulate()
+        # the landmarks of the (possibly shrunk) window at the refined poses and covariances:
+        # every track seen by the keyframes the next frames are matched with (what queries
+        # read); the others keep their triangulation from before the refinement unless
+        # they changed
+        _, lm = self._triangulate(self._pre, self.keyframe_ids[-self.settings.match_keyframes:])
+        self._pre = None
         self._landmarks = lm
         good = lm.inlier & lm.valid[lm.obs_track]
         return WindowUpdate(**{**update.__dict__, "marginalised": marg, "keyframes": len(self._kf),
@@ -213,14 +223,27 @@ class LandmarkWindow:
                                else float("nan")})
 
     # ------------------------------------------------------------------ optimisation
-    def _triangulate(self):
+    def _triangulate(self, previous=None, fresh_frames=()):
+        """Triangulate the window's tracks (min_track_length observations or more).
+
+        ``previous``: ``(observations, MultiviewPoints)`` of an earlier triangulation, or
+        None. Its result is kept for the tracks whose observations did not change since
+        and that have no observation in a keyframe of ``fresh_frames``; the others are
+        triangulated at the current poses and covariances (:mod:`.incremental`).
+        """
         obs = self.tracks.observations(min_length=self.settings.min_track_length)
         ids = self.keyframe_ids
         T = np.stack([self.pose(f) for f in ids])
         C = self.relative_covariances()
         cams = [self._kf[f].info.camera for f in ids]
         view = np.searchsorted(np.array(ids), obs.frame) if len(obs) else np.zeros(0, np.int64)
-        res = triangulate_tracks(obs.track, view, obs.uv, cams, T, self.settings.multiview, C)
+        fresh = np.ones(len(obs), bool)
+        if previous is not None:
+            fresh = ~reusable_tracks(obs, *previous)
+            fresh |= np.isin(obs.track, obs.track[np.isin(obs.frame, list(fresh_frames))])
+        res = triangulate_tracks(obs.track[fresh], view[fresh], obs.uv[fresh], cams, T, self.settings.multiview, C)
+        if not fresh.all():
+            res = merge_points(obs, fresh, res, *previous)
         self._obs = obs
         return obs, res
 
@@ -232,7 +255,10 @@ class LandmarkWindow:
             for f, k in self._kf.items():
                 if k.info.T_w_c is not None:
                     self._graph.set_pose(f, k.info.T_w_c)
-        obs, mv = self._triangulate()
+        # the tracks the new keyframe did not change keep the last update's triangulation
+        previous = None if self._landmarks is None else (self._obs, self._landmarks)
+        obs, mv = self._triangulate(previous, [new_id])
+        self._pre = (obs, mv)
         # per-track outlier rejection: observations outside the gate leave their track
         out = ~mv.inlier & (mv.status[mv.obs_track] != TrackStatus.TOO_FEW_VIEWS)
         out &= np.isin(mv.status[mv.obs_track], (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vio_core.geometry import invert_transform
@@ -20,6 +21,10 @@ from ..landmarks import LandmarkWindow
 from ..poses import adjoint
 from .history import PoseHistory
 from .imu_factors import ImuFactors
+
+#: biases (accelerometer m/s^2, gyroscope rad/s) beyond which a kept preintegration is
+#: integrated again rather than corrected to first order
+_REINTEGRATE = (0.05, 0.005)
 
 
 class FrameBridges:
@@ -35,11 +40,16 @@ class FrameBridges:
         # and those still waiting for the keyframe after: (frame, t, keyframe before)
         self._bridged: list[tuple[int, float, int, int]] = []
         self._unbridged: list[tuple[int, float, int]] = []
+        # per (start, end) time: the preintegration (with the biases it was integrated at)
+        # and the motion noise, kept while the frames are bridged
+        self._pims: dict = {}
+        self._motion_cov: dict = {}
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
         (``(id, t seconds)`` each); a frame between two keyframes is bridged between them."""
         self._bridged, self._unbridged = [], []
+        self._pims, self._motion_cov = {}, {}
         for f, t in frames:
             before = [k for k, kt in keyframes if kt <= t]
             after = [k for k, kt in keyframes if kt > t]
@@ -61,14 +71,20 @@ class FrameBridges:
         """Pose the bridged frames again from the window's latest estimate (``times``: seconds of
         the keyframes); frames whose keyframes left the window are kept as they are."""
         ids = window.keyframe_ids
+        est = window.estimate
+        pairs: dict = {}  # per keyframe pair: what all its frames share (computed once per refresh)
         keep = []
         for f, t, a, b in self._bridged:
             if a in ids and b in ids:
-                T, C = self.pose(window, times, t, a, b)
+                T, C = self._pose(window, est, times, t, a, b, pairs)
                 if T is not None:  # anchored to the later keyframe, which stays in the window longer
                     history.add_frame(f, session, b, T, C)
                 keep.append((f, t, a, b))
         self._bridged = keep
+        starts = {times[a] for _, _, a, _ in keep}
+        ends = {times[b] for _, _, _, b in keep}
+        self._pims = {k: v for k, v in self._pims.items() if k[0] in starts}
+        self._motion_cov = {k: v for k, v in self._motion_cov.items() if k[1] in ends}
 
     def pose(self, window: LandmarkWindow, times: Mapping[int, float], t: float, a: int, b: int):
         """Camera pose (4, 4) of a frame at ``t`` between keyframes ``a`` and ``b`` and its
@@ -79,16 +95,29 @@ class FrameBridges:
         ``(1 - s)^2`` of the relative uncertainty of ``a`` and ``b`` (``s`` the fraction of
         the interval elapsed at ``t``).
         """
-        w = window
-        est = w.estimate
-        st = self.factors.state_of(est, a, times[a])
-        t_b = times[b]
-        end, _, _ = self.factors.predict(st, t)
-        end_b, _, _ = self.factors.predict(st, t_b)
-        if end is None or end_b is None:
+        return self._pose(window, window.estimate, times, t, a, b, {})
+
+    def _pose(self, w: LandmarkWindow, est, times: Mapping[int, float], t: float, a: int, b: int, pairs: dict):
+        """:meth:`pose` with the window's estimate ``est`` and a cache ``pairs`` of the
+        quantities shared by the frames between ``a`` and ``b``."""
+        if (a, b) not in pairs:
+            st = self.factors.state_of(est, a, times[a])
+            end_b, _, _ = self._predict(st, times[b])
+            T_b = C_ab = None
+            if end_b is not None:
+                T_b = self.factors.state_of(est, b, times[b]).T_w_i
+                C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
+            pairs[(a, b)] = (st, end_b, T_b, C_ab)
+        st, end_b, T_b, C_ab = pairs[(a, b)]
+        if end_b is None:
             return None, None
-        _, C_fb, _ = self.factors.predict(end, t_b)  # noise of the camera's motion from t to b, in b
-        T_b = self.factors.state_of(est, b, t_b).T_w_i
+        t_b = times[b]
+        end, _, _ = self._predict(st, t)
+        if end is None:
+            return None, None
+        if (t, t_b) not in self._motion_cov:  # noise of the camera's motion from t to b, in b
+            self._motion_cov[(t, t_b)] = self.factors.predict(end, t_b)[1]
+        C_fb = self._motion_cov[(t, t_b)]
         s = (t - st.t) / max(t_b - st.t, 1e-12)
         dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
         T = end.T_w_i.copy()
@@ -98,7 +127,20 @@ class FrameBridges:
         T_f_b = invert_transform(T_w_f) @ w.pose(b)
         A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
         C = A @ C_fb @ A.T
-        S = w.joint_covariance([a, b])
-        C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), S, 0, 1)
         C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
         return T_w_f, 0.5 * (C + C.T)
+
+    def _predict(self, state, t: float):
+        """The IMU prediction from ``state`` to ``t``; the samples are integrated once per
+        interval and again only when the biases moved by more than ``_REINTEGRATE`` since."""
+        key = (state.t, t)
+        hit = self._pims.get(key)
+        if hit is not None and (np.linalg.norm(state.accel_bias - hit[1]) > _REINTEGRATE[0]
+                                or np.linalg.norm(state.gyro_bias - hit[2]) > _REINTEGRATE[1]):
+            hit = None
+        if hit is None:
+            pim, reason = self.factors.preintegrate(state, t)
+            if pim is None:
+                return None, None, reason
+            hit = self._pims[key] = (pim, state.accel_bias.copy(), state.gyro_bias.copy())
+        return self.factors.predict_with(hit[0], state, t)

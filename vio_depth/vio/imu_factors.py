@@ -157,11 +157,17 @@ class ImuFactors:
             perturbation, rotation first; preintegration noise only), "")`` or
             ``(None, None, reason)``.
         """
-        import gtsam
-
         pim, reason = self.preintegrate(state, t1)
         if pim is None:
             return None, None, reason
+        return self.predict_with(pim, state, t1)
+
+    def predict_with(self, pim, state: KeyframeState, t1: float):
+        """:meth:`predict` with a preintegration ``pim`` from ``state.t`` to ``t1`` that was
+        integrated at other biases (gtsam corrects it to ``state``'s biases to first order):
+        a prediction repeated from an updated state without integrating the samples again."""
+        import gtsam
+
         bias = gtsam.imuBias.ConstantBias(state.accel_bias, state.gyro_bias)
         nav = pim.predict(gtsam.NavState(gtsam.Rot3(state.T_w_i[:3, :3]), state.T_w_i[:3, 3].copy(),
                                          state.velocity_w.copy()), bias)
