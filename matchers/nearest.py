@@ -42,6 +42,7 @@ import threading
 from collections.abc import Callable
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from vio_core.checks import check_array
 from vio_core.errors import SettingsError, ShapeError
@@ -65,8 +66,6 @@ def _torch():
 def _openmp_pools():
     """threadpoolctl's handle on the OpenMP runtimes loaded (torch's), looked up once after
     torch is imported (a lookup costs about 0.5 ms; limiting through the handle 0.01 ms)."""
-    from threadpoolctl import ThreadpoolController
-
     _torch()
     return ThreadpoolController().select(user_api="openmp")
 
