@@ -34,7 +34,9 @@ disparity file) is not timed: a camera driver delivers decoded images.
 **Per stage**: mean ms of the pipeline's own stage timings (``FrameResult.timings``: image,
 disparity, features, poses -- the odometry --, points with its matching and triangulation,
 fit, depth); ``other``: the push's measured time minus those stages (input checks, stream
-bookkeeping). The depth network is excluded: disparity comes from files or memory.
+bookkeeping). In mode ``prefetch`` the features were extracted in the prefetch
+threads, beside the other stages, and ``total`` is the latency (arrival to result), so
+``other`` there is mostly the wait behind the frames in flight. The depth network is excluded: disparity comes from files or memory.
 
 **Baselines** (mode ``afap``, same frames, RGB -> grey included): **bare SIFT** --
 ``cv2.SIFT_create`` with the project's ``matchers.SiftSettings`` (4000 features, contrast
