@@ -164,3 +164,27 @@ def test_submit_checks_inputs_at_once_and_a_non_concurrent_matcher_gets_no_prefe
         FrameStream(seq.camera, prefetch=-1)
     no_matcher = FrameStream(seq.camera, PipelineSettings.from_presets(points="lidar:16"), prefetch=2)
     assert no_matcher.prefetch == 0
+
+
+def test_submitted_frames_with_imu_samples_give_what_pushed_frames_give():
+    """The IMU samples of a submitted frame reach the pose source in stream order, after the
+    frames before it were processed: the imu source's results equal push()'s."""
+    seq = open_sequence(ROOM)
+    imu = seq.imu
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    settings = PipelineSettings.from_presets(poses="imu", pairing="indoor")
+    inputs, t_prev = [], -np.inf
+    for i in range(0, 16, 2):
+        frame = seq[i]
+        new = (imu.t > t_prev) & (imu.t <= frame.timestamp + 0.02)
+        t_prev = frame.timestamp + 0.02
+        inputs.append((frame.image(), disparity(frame), dict(timestamp=frame.timestamp, T_w_c=frame.T_w_c,
+                                                             imu=(imu.t[new], imu.gyro[new], imu.accel[new]))))
+    pushed = FrameStream(seq.camera, settings, imu_calibration=imu)
+    expected = [pushed.push(img, d, **kw) for img, d, kw in inputs]
+    with FrameStream(seq.camera, settings, imu_calibration=imu, prefetch=2) as stream:
+        got = [f.result() for f in [stream.submit(img, d, **kw) for img, d, kw in inputs]]
+    assert any(r.points.partners for r in expected)
+    for a, b in zip(expected, got):
+        _same_result(a, b)
+        assert (a.rescale is None) == (b.rescale is None)
