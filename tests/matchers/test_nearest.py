@@ -190,3 +190,36 @@ def test_an_older_torch_without_the_cpu_checks_means_float32(monkeypatch):
     finally:
         monkeypatch.undo()
         nearest._cpu_has_bfloat16.cache_clear()
+
+
+@needs_torch
+def test_the_bfloat16_product_runs_on_one_thread_of_the_caller_only(monkeypatch):
+    """torch's pool spins after each product beside the next stages (a FrameStream's matching
+    2.5x slower on 2 cores): the product runs on one OpenMP thread, set for the calling
+    thread only and restored afterwards."""
+    import threading
+
+    torch = pytest.importorskip("torch")
+    x, y = near_ties(300, 400, 0)
+    before = torch.get_num_threads()
+    if before < 2:
+        torch.set_num_threads(2)
+    try:
+        seen, elsewhere = [], []
+        mm = torch.mm
+
+        def spy(*args, **kwargs):
+            seen.append(torch.get_num_threads())
+            other = threading.Thread(target=lambda: elsewhere.append(torch.get_num_threads()))
+            other.start()
+            other.join()
+            return mm(*args, **kwargs)
+
+        monkeypatch.setattr(torch, "mm", spy)
+        nn16, s16 = nearest_two_rows(x, y, 128, "bfloat16")
+        assert seen and set(seen) == {1}
+        assert set(elsewhere) == {torch.get_num_threads()} and torch.get_num_threads() >= 2  # restored
+        nn32, s32 = nearest_two_rows(x, y, 128, "float32")
+        np.testing.assert_array_equal(nn16, nn32)
+    finally:
+        torch.set_num_threads(before)

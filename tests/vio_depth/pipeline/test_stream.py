@@ -115,3 +115,76 @@ def test_a_long_stream_does_not_keep_the_pixels_of_past_frames():
     with pytest.raises(InputError, match="not their images"):
         kept.image()
     assert kept.gt_depth() is None
+
+
+def _same_result(a, b):
+    assert (a.frame, a.status, a.reason) == (b.frame, b.status, b.reason)
+    assert a.points.partners == b.points.partners
+    np.testing.assert_array_equal(a.points.uv, b.points.uv)
+    np.testing.assert_array_equal(a.points.depth, b.points.depth)
+    if a.depth is None:
+        assert b.depth is None
+    else:
+        assert (a.fit.alpha, a.fit.beta) == (b.fit.alpha, b.fit.beta)
+        np.testing.assert_array_equal(a.depth, b.depth)
+
+
+@pytest.mark.parametrize("prefetch", [0, 2])
+def test_submitted_frames_give_what_pushed_frames_give(prefetch):
+    """submit() processes in order in a background thread, features extracted ahead by the
+    prefetch threads: the same results as push(), bit for bit, whatever the thread timing."""
+    seq = open_sequence(STREET)
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    inputs = [(seq[i].image(), disparity(seq[i]), seq[i].timestamp, seq[i].T_w_c) for i in range(7)]
+    pushed = FrameStream(seq.camera)
+    expected = [pushed.push(img, d, timestamp=t, T_w_c=T) for img, d, t, T in inputs]
+    with FrameStream(seq.camera, prefetch=prefetch) as stream:
+        assert stream.prefetch == prefetch
+        futures = [stream.submit(img, d, timestamp=t, T_w_c=T) for img, d, t, T in inputs[:6]]
+        last = stream.push(*inputs[6][:2], timestamp=inputs[6][2], T_w_c=inputs[6][3])  # after the queued ones
+        got = [f.result() for f in futures] + [last]
+    assert sum(r.depth is not None for r in expected) >= 2
+    for a, b in zip(expected, got):
+        _same_result(a, b)
+    if prefetch:
+        assert all(r.timings["features"] > 0 for r in got[:6])
+
+
+def test_submit_checks_inputs_at_once_and_a_non_concurrent_matcher_gets_no_prefetch():
+    seq = open_sequence(STREET)
+    image = np.zeros((seq.camera.height, seq.camera.width, 3), np.uint8)
+    with FrameStream(seq.camera, prefetch=2) as stream:
+        stream.submit(image, None, timestamp=1.0)
+        with pytest.raises(InputError, match="increase"):
+            stream.submit(image, None, timestamp=1.0)
+        with pytest.raises(InputError, match="expected"):
+            stream.submit(image[:5], None, timestamp=2.0)
+        assert stream.submit(image, None, timestamp=2.0).result().frame == 1  # refused inputs take no index
+    with pytest.raises(InputError, match="prefetch"):
+        FrameStream(seq.camera, prefetch=-1)
+    no_matcher = FrameStream(seq.camera, PipelineSettings.from_presets(points="lidar:16"), prefetch=2)
+    assert no_matcher.prefetch == 0
+
+
+def test_submitted_frames_with_imu_samples_give_what_pushed_frames_give():
+    """The IMU samples of a submitted frame reach the pose source in stream order, after the
+    frames before it were processed: the imu source's results equal push()'s."""
+    seq = open_sequence(ROOM)
+    imu = seq.imu
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    settings = PipelineSettings.from_presets(poses="imu", pairing="indoor")
+    inputs, t_prev = [], -np.inf
+    for i in range(0, 16, 2):
+        frame = seq[i]
+        new = (imu.t > t_prev) & (imu.t <= frame.timestamp + 0.02)
+        t_prev = frame.timestamp + 0.02
+        inputs.append((frame.image(), disparity(frame), dict(timestamp=frame.timestamp, T_w_c=frame.T_w_c,
+                                                             imu=(imu.t[new], imu.gyro[new], imu.accel[new]))))
+    pushed = FrameStream(seq.camera, settings, imu_calibration=imu)
+    expected = [pushed.push(img, d, **kw) for img, d, kw in inputs]
+    with FrameStream(seq.camera, settings, imu_calibration=imu, prefetch=2) as stream:
+        got = [f.result() for f in [stream.submit(img, d, **kw) for img, d, kw in inputs]]
+    assert any(r.points.partners for r in expected)
+    for a, b in zip(expected, got):
+        _same_result(a, b)
+        assert (a.rescale is None) == (b.rescale is None)
