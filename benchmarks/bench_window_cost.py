@@ -111,7 +111,8 @@ def main(argv=None) -> int:
         for k in range(args.repeats):
             for name, code in ((f"baseline {args.baseline_rev}", base), ("this checkout", REPO)):
                 rows.append((name, k + 1, run_checkout(code, args.cache)))
-    print("| code | run | frames posed | poses ms mean | p90 | p99 | odometry CPU ms mean | p90 | p99 | ATE m | AbsRel |")
+    print("| code | run | frames posed | poses ms mean | p90 | p99 | odometry CPU ms mean | p90 | p99 | ATE m "
+          "| AbsRel |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, k, r in rows:
         w, c = r["wall"], r["cpu"]
