@@ -199,3 +199,16 @@ def test_klt_matcher_and_edge_guard_flags(capsys):
     assert main(["config", "--dump", "--edge-guard", "0"]) == 1  # a guard must be positive
     assert "max_disparity_spread" in capsys.readouterr().err
     assert main(["config", "--dump", "--matcher", "klt", "--guided-matching"]) == 1  # tracks need no band
+
+
+@needs_street
+def test_offline_backfill_with_klt_tracks_the_frames_backwards(tmp_path, capsys):
+    """The forward pass's KLT features carry forward track ids; the backward pass follows the
+    frames backwards itself (with the kept forward features it paired nothing beyond them)."""
+    out = tmp_path / "klt"
+    rc, _, err = _run(["run", STREET, "--out", out, "--max-frames", 6, "--matcher", "klt", "--edge-guard", "0.1"],
+                      capsys)
+    assert rc == 0, err
+    first = read_frames_jsonl(out / "frames.jsonl")[1][0]
+    assert first["status"] == "ok" and first["backfilled"] is True
+    assert first["partner_keyframe"] > 0 and first["abs_rel"] < 0.1

@@ -174,9 +174,12 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     backfill_s = 0.0
     backfill = settings.backfill and pipeline.points is not None
     try:
-        # the backward pass re-uses the features of the first frames (bounded: see keep_features)
+        # the backward pass re-uses the features of the first frames (bounded: see keep_features),
+        # except a tracking matcher's: it follows the frames backwards again (its forward track ids
+        # would not join the backward ones, and tracking costs little)
         features = forward_pass(sequence, pipeline, n, frames_out, writer, progress=progress, overlap=overlap,
-                                workers=workers, torch_threads=torch_threads, keep=backfill)
+                                workers=workers, torch_threads=torch_threads,
+                                keep=backfill and pipeline.tracked is None)
         if backfill:
             backfill_s = backfill_pass(sequence, pipeline, n, frames_out, writer, features, overlap=overlap,
                                        workers=workers)

@@ -70,13 +70,29 @@ def test_frames_that_do_not_follow_restart_the_tracks():
     rec = RecordingTracker()
     ex = TrackedExtraction(rec, lambda: None, use_poses=False)
     image = np.zeros((4, 4, 3), np.uint8)
-    for i in (0, 1, 3, 2):  # a gap, then backwards
+    for i in (0, 1, 3, 2, 5):  # a gap, then one back (a neighbour: tracked on), then a gap
         ex(seq[i], image)
     assert rec.resets == 3
     assert all(h.R_cur_prev is None for h in rec.hints)  # no IMU: no rotation
-    f = seq[4]
-    ex(Frame(3, f.timestamp, f.stem, f.camera, f.T_w_c, f.load_image), image)  # index follows, time does not
-    assert rec.resets == 3 and rec.hints[-1].R_cur_prev is None
+    f = seq[7]
+    ex(Frame(6, f.timestamp, f.stem, f.camera, f.T_w_c, f.load_image), image)  # index follows, time jumps
+    assert rec.resets == 3
+    ex(Frame(7, seq[1].timestamp, f.stem, f.camera, f.T_w_c, f.load_image), image)  # index follows, time goes back
+    assert rec.resets == 4
+
+
+def test_backwards_the_rotation_is_the_forward_one_inverted():
+    seq = open_sequence(ROOM)
+    rec = RecordingTracker()
+    image = np.zeros((4, 4, 3), np.uint8)
+    for use_poses in (True, False):
+        ex = TrackedExtraction(rec, lambda: seq.imu, use_poses)
+        forward = ex.rotation(seq[4], seq[5])
+        backward = ex.rotation(seq[5], seq[4])
+        np.testing.assert_allclose(backward, forward.T, atol=1e-12)
+        for i in (6, 5, 4):
+            ex(seq[i], image)
+        np.testing.assert_allclose(rec.hints[-1].R_cur_prev, backward, atol=1e-12)
 
 
 def test_klt_pipeline_gives_depth_under_gt_with_the_edge_guard():
