@@ -35,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from bench_realtime import reset_peak_rss  # noqa: E402
 from throughput_data import pingpong  # noqa: E402
 
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
@@ -97,11 +98,7 @@ def main(argv=None) -> int:
         guard = args.klt_edge_guard if matcher == "klt" else None
         # each matcher in a fresh process would isolate the peaks; one process keeps it simple:
         # the peak (VmHWM) is reset before each matcher where Linux allows it
-        try:
-            with open("/proc/self/clear_refs", "w") as f:
-                f.write("5")
-        except OSError:
-            pass
+        reset_peak_rss()
         rows = run(matcher, args.frames, args.every, guard)
         label = matcher if guard is None else f"{matcher}, guard {guard:g}"
         print(f"\n## {label}\n\n| frames | RSS MiB | peak MiB | seconds |\n|---|---|---|---|")

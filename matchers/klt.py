@@ -44,6 +44,7 @@ import numpy as np
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_image
 from vio_core.errors import SettingsError, ShapeError
+from vio_core.settings import require_positive
 
 from .base import Features, Matches, MotionHint
 
@@ -100,9 +101,7 @@ class KltSettings:
             raise SettingsError(f"klt.pyramid_levels must be an integer >= 0, got {self.pyramid_levels!r}")
         if not 0 < self.quality < 1:
             raise SettingsError(f"klt.quality must be in (0, 1), got {self.quality}")
-        for name in ("min_distance_px", "ransac_px"):
-            if not np.isfinite(getattr(self, name)) or getattr(self, name) <= 0:
-                raise SettingsError(f"klt.{name} must be finite and > 0, got {getattr(self, name)}")
+        require_positive(self, "min_distance_px", "ransac_px")
         for name in ("back_check_px", "border_px"):
             if not np.isfinite(getattr(self, name)) or getattr(self, name) < 0:
                 raise SettingsError(f"klt.{name} must be finite and >= 0, got {getattr(self, name)}")
@@ -146,9 +145,7 @@ def _rays(camera: Camera | None, uv: np.ndarray) -> np.ndarray:
     """(N, 3) rays with z = 1 of raw pixels ``uv: (N, 2)`` (pixels themselves without a camera)."""
     if camera is None:
         return np.column_stack([uv, np.ones(len(uv))])
-    ideal = camera.undistort_points(uv)
-    return np.column_stack([(ideal[:, 0] - camera.cx) / camera.fx, (ideal[:, 1] - camera.cy) / camera.fy,
-                            np.ones(len(uv))])
+    return camera.backproject(camera.undistort_points(uv), np.ones(len(uv)))
 
 
 def predict_rotated(uv_prev, camera: Camera, R_cur_prev) -> np.ndarray:
@@ -170,9 +167,7 @@ def predict_rotated(uv_prev, camera: Camera, R_cur_prev) -> np.ndarray:
     r = _rays(camera, np.asarray(uv_prev, np.float64)) @ R.T
     front = r[:, 2] > 1e-6
     out = np.asarray(uv_prev, np.float64).copy()
-    ideal = np.column_stack([camera.fx * r[front, 0] / r[front, 2] + camera.cx,
-                             camera.fy * r[front, 1] / r[front, 2] + camera.cy])
-    out[front] = camera.distort_points(ideal) if camera.is_distorted else ideal
+    out[front] = camera.distort_points(camera.project(r[front])[0])  # identity without distortion
     return out
 
 

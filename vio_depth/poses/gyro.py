@@ -37,8 +37,12 @@ def gyro_rotation(imu: ImuData, t0: float, t1: float, gyro_bias=None) -> np.ndar
         raise ValueError(f"gyro_rotation: t1 {t1} before t0 {t0}")
     if len(t) == 0 or t0 < t[0] or t1 > t[-1]:
         return None
-    knots = np.concatenate([[t0], t[(t > t0) & (t < t1)], [t1]])
-    rate = np.stack([np.interp(knots, t, imu.gyro[:, k]) for k in range(3)], axis=1) - bias
+    # only the samples around the interval: a stream's samples grow for as long as it runs
+    i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
+    ts, gyro = t[i0:i1], imu.gyro[i0:i1]
+    knots = np.concatenate([[t0], ts[(ts > t0) & (ts < t1)], [t1]])
+    rate = np.stack([np.interp(knots, ts, gyro[:, k]) for k in range(3)], axis=1) - bias
     steps = 0.5 * (rate[1:] + rate[:-1]) * np.diff(knots)[:, None]  # (K, 3) rotation vectors, radians
     R = np.eye(3)
     for dR in Rotation.from_rotvec(steps).as_matrix():  # a handful of samples per camera frame
