@@ -57,13 +57,19 @@ as indicative, for the 512x384 ASL sample); ``--poses gt`` on 1242x375:
 ``afap`` (and ``prefetch``) frames/s >= 0.8 x bare SIFT's (the stream's push, no output writing:
 ``bench_throughput.py`` times the whole CLI run).
 
+**Points under vio** (``--vio-points sfm,vio``): the ``vio`` datasets' rows once per points
+source -- ``sfm`` (two-view pairs matched and triangulated again; the default) and ``vio`` (the
+odometry's own landmarks and covariances, nothing matched twice; issue 24, item 5).
+
     python benchmarks/bench_realtime.py                                  # every dataset (renders once)
+    python benchmarks/bench_realtime.py --datasets asl_room,euroc --matchers klt --vio-points sfm,vio
     python benchmarks/bench_realtime.py --datasets euroc,kitti_tiny --max-frames 40 --no-baselines
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import platform
 import sys
@@ -185,9 +191,9 @@ class StreamRunner:
     the previous push; times each push; keeps each result's timings and whether it had depth."""
 
     def __init__(self, ds: data.StreamData, prefetch: int = 0, matcher: str = "sift",
-                 edge_guard: float | None = None):
+                 edge_guard: float | None = None, points: str | None = None):
         self.ds = ds
-        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher)
+        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher, points=points)
         if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
             settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
         self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind,
@@ -360,13 +366,14 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
 
 
 def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
-                 prefetch: bool = False, matcher: str = "sift", edge_guard: float | None = None) -> Row:
+                 prefetch: bool = False, matcher: str = "sift", edge_guard: float | None = None,
+                 points: str | None = None) -> Row:
     if warmup:
-        warm = StreamRunner(ds, 0, matcher, edge_guard)
+        warm = StreamRunner(ds, 0, matcher, edge_guard, points)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard)
+    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points)
     reset_peak_rss()
     if prefetch:
         with opencv_threads(1), blas_threads(1), TorchThreads(1):
@@ -377,7 +384,8 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
         mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
                peak_rss_mib(), dict(runner.statuses),
-               matcher if edge_guard is None else f"{matcher}, guard {edge_guard:g}")
+               matcher + ("" if edge_guard is None else f", guard {edge_guard:g}")
+               + ("" if points is None else f", points {points}"))
 
 
 def baseline_row(ds: data.StreamData, baseline) -> Row:
@@ -441,6 +449,10 @@ def main(argv=None) -> int:
                              "the KLT tracking front end)")
     parser.add_argument("--klt-edge-guard", type=float, default=0.1,
                         help="the klt rows' --edge-guard (points on depth edges not fitted; the corners sit on them)")
+    parser.add_argument("--vio-points", default="sfm",
+                        help="comma-separated --points sources of the vio datasets' rows, one row set each (sfm: "
+                             "two-view pairs matched and triangulated again, today's default; vio: the odometry's "
+                             "own landmarks, no second matching)")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
@@ -451,6 +463,9 @@ def main(argv=None) -> int:
     bad = [m for m in matchers if m not in MATCHER_PRESETS]
     if bad or not matchers:
         parser.error(f"unknown matcher(s) {', '.join(bad) or '(none)'} (valid: {', '.join(MATCHER_PRESETS)})")
+    vio_points = [p for p in args.vio_points.split(",") if p]
+    if not vio_points or not set(vio_points) <= {"sfm", "vio"}:
+        parser.error(f"unknown --vio-points {args.vio_points!r} (valid: sfm, vio)")
     if unknown:
         parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
     if not modes or not set(modes) <= {"realtime", "afap", "prefetch"}:
@@ -472,15 +487,16 @@ def main(argv=None) -> int:
         rate = (len(ds) - 1) / (ds.timestamps[-1] - ds.timestamps[0]) if len(ds) > 1 else float("nan")
         print(f"\n## {name} ({ds.size}, {len(ds)} frames, {rate:.1f} Hz, --poses {ds.poses}, --pairing "
               f"{ds.pairing}): {ds.description}", flush=True)
-        for matcher in matchers:
-            for mode in modes:
-                if mode == "prefetch" and matcher == "klt":
-                    continue  # a tracker follows the previous frame: nothing to extract ahead
-                row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
-                                   prefetch=mode == "prefetch", matcher=matcher,
-                                   edge_guard=args.klt_edge_guard if matcher == "klt" else None)
-                rows.append(row)
-                print(f"  {matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
+        sources = vio_points if ds.poses == "vio" else [None]
+        for matcher, points, mode in itertools.product(matchers, sources, modes):
+            if mode == "prefetch" and matcher == "klt":
+                continue  # a tracker follows the previous frame: nothing to extract ahead
+            row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
+                               prefetch=mode == "prefetch", matcher=matcher,
+                               edge_guard=args.klt_edge_guard if matcher == "klt" else None,
+                               points=None if points == "sfm" else points)
+            rows.append(row)
+            print(f"  {row.matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:
             for baseline in (BareSift(), BareKlt()):
                 rows.append(baseline_row(ds, baseline))
