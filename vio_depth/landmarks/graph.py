@@ -163,6 +163,7 @@ class WindowGraph:
                 graph.add(gtsam.GenericProjectionFactorCal3DS2(p, robust, x, L(tid), cal))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(s.lm_max_iterations)
+        params.setAbsoluteErrorTol(s.lm_min_error_decrease)
         before = graph.error(values)
         try:
             result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()

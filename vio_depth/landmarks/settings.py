@@ -141,6 +141,10 @@ class LandmarkSettings:
         ba_max_landmarks: most landmarks in the graph (the longest tracks, then the most
             certain); every track is triangulated at the refined poses afterwards.
         lm_max_iterations: Levenberg-Marquardt iterations per keyframe.
+        lm_min_error_decrease: Levenberg-Marquardt stops after an iteration that lowered the
+            graph error (half the sum of squared whitened residuals) by less than this
+            (gtsam's ``absoluteErrorTol``); e.g. 0.5: a change well inside one sigma of the
+            estimate is not worth another full linear solve of the window.
         restart_from_priors: with pose priors on every keyframe, each refinement starts
             from the priors instead of the previous estimate (robust to a window that went
             astray; costs a few more iterations).
@@ -161,6 +165,7 @@ class LandmarkSettings:
     max_keyframe_gap: int = 30
     ba_max_landmarks: int = 800
     lm_max_iterations: int = 15
+    lm_min_error_decrease: float = 0.5
     restart_from_priors: bool = True
     query_max_iterations: int = 5
     min_query_points: int = 12
@@ -178,6 +183,8 @@ class LandmarkSettings:
             raise SettingsError("ba_max_landmarks must be >= 1")
         if self.max_keyframe_gap < 1 or self.lm_max_iterations < 1 or self.query_max_iterations < 0:
             raise SettingsError("max_keyframe_gap and lm_max_iterations must be >= 1, query_max_iterations >= 0")
+        if not self.lm_min_error_decrease >= 0:
+            raise SettingsError("lm_min_error_decrease must be >= 0")
         if self.min_query_points < 3:
             raise SettingsError("min_query_points must be >= 3")
 

@@ -206,6 +206,7 @@ SETTING_RANGES: dict[str, str] = {
     "LandmarkSettings.max_keyframe_gap": "[1, inf)",
     "LandmarkSettings.ba_max_landmarks": "[1, inf)",
     "LandmarkSettings.lm_max_iterations": "[1, inf)",
+    "LandmarkSettings.lm_min_error_decrease": "[0, inf)",
     "LandmarkSettings.query_max_iterations": "[0, inf)",
     "LandmarkSettings.min_query_points": "[3, inf)",
     "PosePriorSettings.absolute_rotation_deg": "(0, inf)",
