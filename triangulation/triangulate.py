@@ -365,14 +365,27 @@ def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarr
     J = np.empty((len(uv_cur), 6))
     for k in range(6):
         z = []
+        for dR, rho in _POSE_STEPS[k]:
+            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R @ dR, t + R @ rho))
+        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
+    return J
+
+
+def _pose_steps() -> tuple:
+    """Per tangent coordinate k, the (+step, -step) perturbations ``(Exp(w) as (3, 3), rho (3,))``
+    of :func:`_depth_jacobian_pose` (constants: computed once, not per call)."""
+    steps = []
+    for k in range(6):
+        pair = []
         for sign in (1.0, -1.0):
             xi = np.zeros(6)
             xi[k] = sign * (_STEP_ROT if k < 3 else _STEP_TRANS)
-            Rp = R @ Rotation.from_rotvec(xi[:3]).as_matrix()
-            tp = t + R @ xi[3:]
-            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, Rp, tp))
-        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
-    return J
+            pair.append((Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:]))
+        steps.append(tuple(pair))
+    return tuple(steps)
+
+
+_POSE_STEPS = _pose_steps()
 
 
 def triangulate_pair(
