@@ -25,7 +25,8 @@ street-imu         sample street, --poses imu
 street-landmarks   sample street, --points landmarks
 room-gt            sample room, --pairing indoor --max-depth 10
 room-imu           sample room, --poses imu, indoor
-street-vio         sample street, --poses vio (visual-inertial odometry from the images and IMU)
+street-vio         sample street, --poses vio (visual-inertial odometry from the images and IMU;
+                   --quick: its 30 frames are all still initialising, exit code 3 on both sides)
 room-vio           sample room, --poses vio, indoor
 room-vio-klt       sample room, --poses vio --matcher klt, indoor (the tracking matcher's path)
 kitti-gt / -imu    ../shared/data/kitti_tiny (real, OXTS), --disparity simulated
