@@ -25,6 +25,10 @@ street-imu         sample street, --poses imu
 street-landmarks   sample street, --points landmarks
 room-gt            sample room, --pairing indoor --max-depth 10
 room-imu           sample room, --poses imu, indoor
+street-vio         sample street, --poses vio (visual-inertial odometry from the images and IMU;
+                   --quick: its 30 frames are all still initialising, exit code 3 on both sides)
+room-vio           sample room, --poses vio, indoor
+room-vio-klt       sample room, --poses vio --matcher klt, indoor (the tracking matcher's path)
 kitti-gt / -imu    ../shared/data/kitti_tiny (real, OXTS), --disparity simulated
 euroc-gt / -imu    ../shared/data/euroc_v101_static (real, still): a smooth synthetic disparity
                    written to files (the slice has no depth; only the pose/points path matters)
@@ -69,6 +73,9 @@ def runs(quick: bool, disparity_dir: Path) -> dict[str, list[str]]:
         "street-landmarks": [street, "--points", "landmarks"],
         "room-gt": [room, *indoor],
         "room-imu": [room, *indoor, "--poses", "imu"],
+        "street-vio": [street, "--poses", "vio"],
+        "room-vio": [room, *indoor, "--poses", "vio"],
+        "room-vio-klt": [room, *indoor, "--poses", "vio", "--matcher", "klt"],
     }
     if (DATA / "kitti_tiny").is_dir():
         kitti = [str(DATA / "kitti_tiny"), "--disparity", "simulated"]

@@ -202,11 +202,13 @@ def pose_jacobian(p_c) -> np.ndarray:
 
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sums of ``values: (M, ...)`` grouped by ``index: (M,)`` into (n, ...) (bincount per component)."""
-    flat = values.reshape(len(values), int(np.prod(values.shape[1:], dtype=np.int64)))
-    out = np.empty((n, flat.shape[1]))
-    for k in range(flat.shape[1]):
-        out[:, k] = np.bincount(index, weights=flat[:, k], minlength=n)
+    """Sums of ``values: (M, ...)`` grouped by ``index: (M,)`` into (n, ...), float64."""
+    k = int(np.prod(values.shape[1:], dtype=np.int64))
+    # one bincount over (group, component) bins: each bin still sums its values in row
+    # order, as one bincount per component did
+    bins = (np.asarray(index, np.int64)[:, None] * k + np.arange(k)).ravel()
+    out = np.bincount(bins, weights=values.reshape(-1), minlength=n * k)
+    out = out.astype(np.float64, copy=False)  # bincount of nothing: int zeros
     return out.reshape((n,) + values.shape[1:])
 
 
@@ -230,8 +232,9 @@ def _inv2(S: np.ndarray) -> np.ndarray:
 def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
     with np.errstate(invalid="ignore", over="ignore"):
-        det = np.linalg.det(np.nan_to_num(A))
-    scale = np.einsum("nii->n", np.nan_to_num(A)) ** 3
+        A0 = np.nan_to_num(A)
+        det = np.linalg.det(A0)
+    scale = np.einsum("nii->n", A0) ** 3
     ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
     x = np.full(b.shape, np.nan)
     if ok.any():
@@ -375,7 +378,8 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             e0 = _quad2(r, S_inv[o])
             cost0 = np.bincount(tc, weights=np.where(use & np.isfinite(e0), e0, 0.0), minlength=n)
             X_new = X.copy()
-            X_new[rows] = np.where(solvable[:, None], X[rows] + np.nan_to_num(step), X[rows])
+            step = np.nan_to_num(step)
+            X_new[rows] = np.where(solvable[:, None], X[rows] + step, X[rows])
             p_new, r_new = residuals(X_new, o)
             e1 = _quad2(r_new, S_inv[o])
             use1 = use & (p_new[:, 2] > 0) & np.isfinite(e1)
@@ -385,7 +389,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             # converged: the track moved by at most 1e-7 of its distance to the cameras
             dist2 = np.bincount(tc, weights=np.sum((X[t[o]] - centres[o]) ** 2, 1), minlength=n)
             scale = np.maximum(np.sqrt(dist2 / np.maximum(n_obs[rows], 1)), 1e-9)
-            moving[rows] = better & (np.linalg.norm(np.nan_to_num(step), axis=1) > 1e-7 * scale)
+            moving[rows] = better & (np.linalg.norm(step, axis=1) > 1e-7 * scale)
         if round_ == s.outlier_rounds:
             break
         # --- drop the worst outlier of each track that has one

@@ -270,10 +270,34 @@ def correct_matches(F, uv_cur, uv_ref) -> tuple[np.ndarray, np.ndarray]:
     return _correct(F, uv_cur, uv_ref)
 
 
+def _homogeneous(uv) -> np.ndarray:
+    """(N, 3) float64 ``[u, v, 1]`` of ``uv: (N, 2)``: ``np.column_stack([uv, ones])`` without its
+    generic overhead (these run thousands of times per sequence, in the pose Jacobians)."""
+    out = np.empty((len(uv), 3))
+    out[:, :2] = uv
+    out[:, 2] = 1.0
+    return out
+
+
+def _cross(a, b) -> np.ndarray:
+    """``np.cross`` of two (N, 3) float64 arrays: the same products and differences in the
+    same order, without its generic overhead (axis moves)."""
+    out = np.empty((len(a), 3))
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    np.multiply(a1, b2, out=out[:, 0])
+    out[:, 0] -= a2 * b1
+    np.multiply(a2, b0, out=out[:, 1])
+    out[:, 1] -= a0 * b2
+    np.multiply(a0, b1, out=out[:, 2])
+    out[:, 2] -= a1 * b0
+    return out
+
+
 def _correct(F, uv_cur, uv_ref):
     # Lindstrom's notation: x = x_ref, x' = x_cur, E = F, S = [I2 0].
-    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
-    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
+    xc = _homogeneous(uv_cur)
+    xr = _homogeneous(uv_ref)
     F2 = F[:2, :2]
     n_r = (xc @ F.T)[:, :2]  # S F x'
     n_c = (xr @ F)[:, :2]  # S F^T x
@@ -294,8 +318,8 @@ def _correct(F, uv_cur, uv_ref):
 
 def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
     """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
-    f = np.column_stack([uv_cur, np.ones(len(uv_cur))]) @ K_cur_inv.T  # cur rays, z = 1
-    g = np.column_stack([uv_ref, np.ones(len(uv_ref))]) @ K_ref_inv.T @ R  # ref rays in cur frame (R^T f_ref)
+    f = _homogeneous(uv_cur) @ K_cur_inv.T  # cur rays, z = 1
+    g = _homogeneous(uv_ref) @ K_ref_inv.T @ R  # ref rays in cur frame (R^T f_ref)
     C = -R.T @ t  # reference camera centre in the current frame
     ff = np.sum(f * f, 1)
     gg = np.sum(g * g, 1)
@@ -307,7 +331,7 @@ def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
         lam_c = np.where(det > 0, (gg * fC - fg * gC) / det, np.nan)
         lam_r = np.where(det > 0, (fg * fC - ff * gC) / det, np.nan)
     points = 0.5 * (lam_c[:, None] * f + C + lam_r[:, None] * g)
-    sin = np.linalg.norm(np.cross(f, g), axis=1)
+    sin = np.linalg.norm(_cross(f, g), axis=1)
     return points, fg, sin
 
 
@@ -341,14 +365,27 @@ def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarr
     J = np.empty((len(uv_cur), 6))
     for k in range(6):
         z = []
+        for dR, rho in _POSE_STEPS[k]:
+            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R @ dR, t + R @ rho))
+        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
+    return J
+
+
+def _pose_steps() -> tuple:
+    """Per tangent coordinate k, the (+step, -step) perturbations ``(Exp(w) as (3, 3), rho (3,))``
+    of :func:`_depth_jacobian_pose` (constants: computed once, not per call)."""
+    steps = []
+    for k in range(6):
+        pair = []
         for sign in (1.0, -1.0):
             xi = np.zeros(6)
             xi[k] = sign * (_STEP_ROT if k < 3 else _STEP_TRANS)
-            Rp = R @ Rotation.from_rotvec(xi[:3]).as_matrix()
-            tp = t + R @ xi[3:]
-            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, Rp, tp))
-        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
-    return J
+            pair.append((Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:]))
+        steps.append(tuple(pair))
+    return tuple(steps)
+
+
+_POSE_STEPS = _pose_steps()
 
 
 def triangulate_pair(

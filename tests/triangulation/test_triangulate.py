@@ -228,3 +228,18 @@ def test_optimal_correction_is_minimal_and_exact():
         opt = minimize(f, np.r_[uc[i], ur[i]], constraints=[con], method="SLSQP",
                        options={"ftol": 1e-14, "maxiter": 200})
         assert cost[i] <= opt.fun * (1 + 1e-6) + 1e-12
+
+
+def test_cross_and_homogeneous_equal_numpy_bit_for_bit():
+    from triangulation.triangulate import _cross, _homogeneous
+
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 5, 4097):
+        a = rng.normal(size=(n, 3)) * 10 ** rng.uniform(-8, 8, (n, 1))
+        b = rng.normal(size=(n, 3))
+        assert np.array_equal(_cross(a, b), np.cross(a, b))
+        uv = rng.normal(size=(n, 2))
+        for x in (uv, uv.astype(np.float32)):
+            h = _homogeneous(x)
+            assert h.dtype == np.float64 and h.flags.c_contiguous
+            assert np.array_equal(h, np.column_stack([x, np.ones(n)]))

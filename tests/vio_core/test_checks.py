@@ -83,3 +83,68 @@ def test_lookup_returns_the_entry_or_lists_valid_names():
         lookup("thing", "c", table)
     with pytest.raises(ValueError):  # unhashable names are unknown too, not a TypeError
         lookup("thing", ["a"], table)
+
+
+def _check_transform_allclose(T) -> str:
+    """The reference check_transform (np.allclose, np.linalg.det): '' or which error."""
+    T = check_array("T", T, (4, 4), finite=True)
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        return "last row"
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+        return "rotation"
+    return ""
+
+
+def test_check_transform_matches_allclose_at_the_tolerances():
+    """check_transform's scalar tests accept and reject exactly what np.allclose did: the
+    last row and R @ R.T perturbed around their tolerances, reflections, float32, huge
+    entries whose R @ R.T overflows."""
+    rng = np.random.default_rng(7)
+    R0 = Rotation.from_rotvec([0.3, -0.2, 0.1]).as_matrix()
+    cases = []
+    for scale in (1e-10, 1e-9, 1.00001e-5, 1e-5, 2e-5, 1e-3):
+        for _ in range(20):
+            T = make_transform(R0, rng.normal(size=3))
+            T[3] += rng.choice([-1, 1], 4) * scale * rng.uniform(0.5, 1.5, 4)
+            cases.append(T)
+            T = make_transform(R0, rng.normal(size=3))
+            T[:3, :3] += rng.normal(size=(3, 3)) * scale
+            cases.append(T)
+    for nudge in (0.0, 1e-9, 1e-5, 1.00001e-5 - 1e-9):  # at the boundary of the last row's 1
+        T = make_transform(R0, [1, 2, 3])
+        T[3, 3] += nudge
+        T[3, 0] = nudge / 1e4
+        cases.append(T)
+    reflection = make_transform(R0, [0, 0, 0])
+    reflection[:3, 0] *= -1.0
+    huge = make_transform(R0, [0, 0, 0])
+    huge[0, :3] = [1e200, -1e200, 1e200]
+    cases += [reflection, huge, make_transform(R0, [1, 2, 3]).astype(np.float32)]
+    outcomes = set()
+    for T in cases:
+        with np.errstate(over="ignore", invalid="ignore"):  # the huge case's R @ R.T
+            want = _check_transform_allclose(T)
+            outcomes.add(want)
+            if want:
+                with pytest.raises(ShapeError, match=want):
+                    check_transform("T", T)
+            else:
+                assert check_transform("T", T) is T
+    assert outcomes == {"", "last row", "rotation"}  # every path exercised
+
+
+def test_check_transform_rejects_reflections_and_non_finite():
+    T = make_transform(Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix(), [1, 2, 3])
+    bad = T.copy()
+    bad[:3, 2] *= -1.0  # orthonormal, determinant -1
+    with pytest.raises(ShapeError, match="rotation"):
+        check_transform("T", bad)
+    bad = T.copy()
+    bad[0, 3] = np.inf
+    with pytest.raises(ShapeError, match="NaN or infinite"):
+        check_transform("T", bad)
+    with pytest.raises(ShapeError, match=r"T: expected shape \(4, 4\), got \(3, 4\)"):
+        check_transform("T", T[:3])
+    with pytest.raises(ShapeError, match=r"expected shape \(4, 4\), got \(4, 4, 1\)"):
+        check_transform("T", T[..., None])

@@ -103,14 +103,19 @@ class FrameBridges:
         if (a, b) not in pairs:
             st = self.factors.state_of(est, a, times[a])
             end_b, _, _ = self._predict(st, times[b])
-            T_b = C_ab = None
+            shared = None
             if end_b is not None:
                 T_b = self.factors.state_of(est, b, times[b]).T_w_i
-                C_ab = PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
-            pairs[(a, b)] = (st, end_b, T_b, C_ab)
-        st, end_b, T_b, C_ab = pairs[(a, b)]
-        if end_b is None:
+                T_w_b = w.pose(b)
+                C_ab = PoseHistory.pair_covariance(w.pose(a), T_w_b, w.joint_covariance([a, b]), 0, 1)
+                # the mismatch at b (rotation vector, translation), the same for all the pair's frames
+                dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
+                shared = (dR, T_b[:3, 3] - end_b.T_w_i[:3, 3], T_w_b, C_ab)
+            pairs[(a, b)] = (st, shared)
+        st, shared = pairs[(a, b)]
+        if shared is None:
             return None, None
+        dR, dp, T_w_b, C_ab = shared
         t_b = times[b]
         end, _, _ = self._predict(st, t)
         if end is None:
@@ -119,20 +124,20 @@ class FrameBridges:
             self._motion_cov[(t, t_b)] = self.factors.predict(end, t_b)[1]
         C_fb = self._motion_cov[(t, t_b)]
         s = (t - st.t) / max(t_b - st.t, 1e-12)
-        dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
         T = end.T_w_i.copy()
         T[:3, :3] = Rotation.from_rotvec(s * dR).as_matrix() @ T[:3, :3]
-        T[:3, 3] = T[:3, 3] + s * (T_b[:3, 3] - end_b.T_w_i[:3, 3])
-        T_w_f = T @ invert_transform(self.factors.T_c_i)
-        T_f_b = invert_transform(T_w_f) @ w.pose(b)
+        T[:3, 3] = T[:3, 3] + s * dp
+        T_w_f = T @ self.factors.T_i_c
+        T_f_b = invert_transform(T_w_f) @ T_w_b
         A = adjoint(T_f_b)  # (T_f_b)^-1 = T_b_f: its covariance in f from the one of T_f_b in b
         C = A @ C_fb @ A.T
         C = C + (1.0 - s) ** 2 * A @ C_ab @ A.T
         return T_w_f, 0.5 * (C + C.T)
 
     def _predict(self, state, t: float):
-        """The IMU prediction from ``state`` to ``t``; the samples are integrated once per
-        interval and again only when the biases moved by more than ``_REINTEGRATE`` since."""
+        """The IMU prediction from ``state`` to ``t`` (without its covariance: ``(end, None,
+        reason)``); the samples are integrated once per interval and again only when the
+        biases moved by more than ``_REINTEGRATE`` since."""
         key = (state.t, t)
         hit = self._pims.get(key)
         if hit is not None and (np.linalg.norm(state.accel_bias - hit[1]) > _REINTEGRATE[0]
@@ -143,4 +148,4 @@ class FrameBridges:
             if pim is None:
                 return None, None, reason
             hit = self._pims[key] = (pim, state.accel_bias.copy(), state.gyro_bias.copy())
-        return self.factors.predict_with(hit[0], state, t)
+        return self.factors.predict_with(hit[0], state, t, covariance=False)

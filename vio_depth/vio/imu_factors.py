@@ -121,6 +121,7 @@ class ImuFactors:
         self.settings = settings
         self.T_c_i = check_transform("imu.T_c_i", imu.T_c_i)
         self.T_i_c = invert_transform(self.T_c_i)
+        self._A_c_i = adjoint(self.T_c_i)
         self.params = preintegration_params(imu, settings.imu)
 
     def update_samples(self, imu: ImuData) -> None:
@@ -162,10 +163,11 @@ class ImuFactors:
             return None, None, reason
         return self.predict_with(pim, state, t1)
 
-    def predict_with(self, pim, state: KeyframeState, t1: float):
+    def predict_with(self, pim, state: KeyframeState, t1: float, covariance: bool = True):
         """:meth:`predict` with a preintegration ``pim`` from ``state.t`` to ``t1`` that was
         integrated at other biases (gtsam corrects it to ``state``'s biases to first order):
-        a prediction repeated from an updated state without integrating the samples again."""
+        a prediction repeated from an updated state without integrating the samples again.
+        ``covariance=False``: the covariance is not computed (None)."""
         import gtsam
 
         bias = gtsam.imuBias.ConstantBias(state.accel_bias, state.gyro_bias)
@@ -175,14 +177,16 @@ class ImuFactors:
         v = np.asarray(nav.velocity(), float).reshape(3)
         if not (np.all(np.isfinite(T)) and np.all(np.isfinite(v))):
             return None, None, f"IMU prediction to {t1:.3f} s is not finite"
+        end = KeyframeState(t1, T, v, state.accel_bias, state.gyro_bias)
+        if not covariance:
+            return end, None, ""
         C = np.asarray(pim.preintMeasCov())[:6, :6] if t1 > state.t else np.zeros((6, 6))
         J = np.eye(6)
         R_rel = state.T_w_i[:3, :3].T @ T[:3, :3]
         J[3:, 3:] = R_rel.T  # translation error: start frame -> end frame (right perturbation)
         C = J @ C @ J.T
-        A = adjoint(self.T_c_i)  # IMU pose error -> camera pose error
+        A = self._A_c_i  # IMU pose error -> camera pose error
         C = A @ C @ A.T
-        end = KeyframeState(t1, T, v, state.accel_bias, state.gyro_bias)
         return end, 0.5 * (C + C.T), ""
 
     # ------------------------------------------------------------------ MotionFactorSource
