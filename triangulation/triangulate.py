@@ -270,52 +270,80 @@ def correct_matches(F, uv_cur, uv_ref) -> tuple[np.ndarray, np.ndarray]:
     return _correct(F, uv_cur, uv_ref)
 
 
+def _homogeneous(uv) -> np.ndarray:
+    """(..., N, 3): pixels ``uv: (..., N, 2)`` with a third coordinate 1."""
+    return np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1)
+
+
 def _correct(F, uv_cur, uv_ref):
+    """Lindstrom's ``niter2`` for ``F: (..., 3, 3)`` and pixels ``uv_cur, uv_ref: (..., N, 2)``.
+
+    Leading dimensions broadcast: one fundamental matrix per batch of matches (the pose
+    Jacobian corrects the same matches under twelve perturbed poses in one call).
+    """
     # Lindstrom's notation: x = x_ref, x' = x_cur, E = F, S = [I2 0].
-    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
-    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
-    F2 = F[:2, :2]
-    n_r = (xc @ F.T)[:, :2]  # S F x'
-    n_c = (xr @ F)[:, :2]  # S F^T x
-    a = np.einsum("ni,ij,nj->n", n_r, F2, n_c)
-    b = 0.5 * (np.sum(n_r**2, 1) + np.sum(n_c**2, 1))
-    c = np.sum(xr * (xc @ F.T), axis=1)
+    xc = _homogeneous(uv_cur)
+    xr = _homogeneous(uv_ref)
+    F2 = F[..., :2, :2]
+    lines_ref = xc @ np.swapaxes(F, -1, -2)  # F x': epipolar lines in the reference image
+    n_r = lines_ref[..., :2]  # S F x'
+    n_c = (xr @ F)[..., :2]  # S F^T x
+    a = np.einsum("...ni,...ij,...nj->...n", n_r, F2, n_c)
+    b = 0.5 * (np.sum(n_r**2, -1) + np.sum(n_c**2, -1))
+    c = np.sum(xr * lines_ref, axis=-1)
     d = np.sqrt(np.maximum(b * b - a * c, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        lam = np.where(b + d > 0, c / (b + d), 0.0)
-        dr = lam[:, None] * n_r
-        dc = lam[:, None] * n_c
-        n_r = n_r - dc @ F2.T
+        lam = np.where(b + d > 0, c / (b + d), 0.0)[..., None]
+        dr = lam * n_r
+        dc = lam * n_c
+        n_r = n_r - dc @ np.swapaxes(F2, -1, -2)
         n_c = n_c - dr @ F2
-        nn = np.sum(n_r**2, 1) + np.sum(n_c**2, 1)
-        lam = np.where(nn > 0, lam * 2.0 * d / nn, 0.0)
-    return uv_cur - lam[:, None] * n_c, uv_ref - lam[:, None] * n_r
+        nn = np.sum(n_r**2, -1) + np.sum(n_c**2, -1)
+        lam = np.where(nn > 0, lam[..., 0] * 2.0 * d / nn, 0.0)[..., None]
+    return uv_cur - lam * n_c, uv_ref - lam * n_r
 
 
-def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
-    """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
-    f = np.column_stack([uv_cur, np.ones(len(uv_cur))]) @ K_cur_inv.T  # cur rays, z = 1
-    g = np.column_stack([uv_ref, np.ones(len(uv_ref))]) @ K_ref_inv.T @ R  # ref rays in cur frame (R^T f_ref)
-    C = -R.T @ t  # reference camera centre in the current frame
-    ff = np.sum(f * f, 1)
-    gg = np.sum(g * g, 1)
-    fg = np.sum(f * g, 1)
-    fC = f @ C
-    gC = g @ C
+def _midpoint(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """Midpoint triangulation of ideal pixels ``uv_cur, uv_ref: (..., N, 2)`` under poses
+    ``R: (..., 3, 3)``, ``t: (..., 3)`` (leading dimensions broadcast).
+
+    Returns ``(f, g, C, fg, lam_c, lam_r)``: the viewing rays in the current frame (f: z = 1
+    current rays, g: reference rays ``R^T f_ref``; (..., N, 3)), the reference camera centre
+    C (..., 3) in the current frame, ``f . g`` (..., N), and the ray lengths (..., N) of the
+    closest points ``lam_c f`` and ``C + lam_r g`` (NaN for parallel rays).
+    """
+    f = _homogeneous(uv_cur) @ K_cur_inv.T
+    g = (_homogeneous(uv_ref) @ K_ref_inv.T) @ R
+    C = (-np.swapaxes(R, -1, -2) @ t[..., None])[..., 0]
+    ff = np.sum(f * f, -1)
+    gg = np.sum(g * g, -1)
+    fg = np.sum(f * g, -1)
+    fC = (f @ C[..., None])[..., 0]
+    gC = (g @ C[..., None])[..., 0]
     det = ff * gg - fg * fg  # = |f x g|^2
     with np.errstate(divide="ignore", invalid="ignore"):
         lam_c = np.where(det > 0, (gg * fC - fg * gC) / det, np.nan)
         lam_r = np.where(det > 0, (fg * fC - ff * gC) / det, np.nan)
+    return f, g, C, fg, lam_c, lam_r
+
+
+def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
+    f, g, C, fg, lam_c, lam_r = _midpoint(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t)
     points = 0.5 * (lam_c[:, None] * f + C + lam_r[:, None] * g)
     sin = np.linalg.norm(np.cross(f, g), axis=1)
     return points, fg, sin
 
 
-def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
-    F = _fundamental(R, t, K_cur_inv, K_ref_inv)
+def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t, F=None):
+    """(..., N) depth (z in the current camera) of corrected, midpoint-triangulated ideal
+    pixels ``uv_cur, uv_ref: (..., N, 2)`` under ``R: (..., 3, 3)``, ``t: (..., 3)`` whose
+    fundamental matrices ``F: (..., 3, 3)`` are computed when not given."""
+    if F is None:
+        F = _fundamental(R, t, K_cur_inv, K_ref_inv)
     c_cur, c_ref = _correct(F, uv_cur, uv_ref)
-    points, _, _ = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
-    return points[:, 2]
+    f, g, C, _, lam_c, lam_r = _midpoint(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
+    return 0.5 * (lam_c * f[..., 2] + C[..., None, 2] + lam_r * g[..., 2])
 
 
 def _depth_jacobian_pixels(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
@@ -332,23 +360,34 @@ def _depth_jacobian_pixels(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.nda
     return ((z[:, 0] - z[:, 1]) / (2.0 * _STEP_PX)).T
 
 
+#: (6,) central-difference step of each pose tangent axis (rotation rad, then translation m)
+_POSE_STEP = np.array([_STEP_ROT] * 3 + [_STEP_TRANS] * 3)
+
+
+def _pose_steps() -> np.ndarray:
+    """(12, 6): the tangent-space perturbations of the pose Jacobian, +h then -h per axis."""
+    axis = np.arange(6)
+    xi = np.zeros((6, 2, 6))
+    xi[axis, 0, axis] = _POSE_STEP
+    xi[axis, 1, axis] = -_POSE_STEP
+    return xi.reshape(12, 6)
+
+
+_POSE_STEPS = _pose_steps()
+
+
 def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
     """(N, 6) d depth / d xi for ``T_ref_cur * Exp(xi)``, ``xi = (rotation rad, translation m)``.
 
     First order, ``T * Exp(xi)`` has rotation ``R Exp(w)`` and translation ``t + R rho``
-    (the GTSAM ``Pose3`` retraction convention).
+    (the GTSAM ``Pose3`` retraction convention). Central differences: the twelve perturbed
+    poses (+h, -h per axis) are triangulated in one batched call.
     """
-    J = np.empty((len(uv_cur), 6))
-    for k in range(6):
-        z = []
-        for sign in (1.0, -1.0):
-            xi = np.zeros(6)
-            xi[k] = sign * (_STEP_ROT if k < 3 else _STEP_TRANS)
-            Rp = R @ Rotation.from_rotvec(xi[:3]).as_matrix()
-            tp = t + R @ xi[3:]
-            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, Rp, tp))
-        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
-    return J
+    R_p = R @ Rotation.from_rotvec(_POSE_STEPS[:, :3]).as_matrix()  # (12, 3, 3)
+    t_p = t + (R @ _POSE_STEPS[:, 3:, None])[..., 0]  # (12, 3)
+    F_p = np.stack([_fundamental(Rk, tk, K_cur_inv, K_ref_inv) for Rk, tk in zip(R_p, t_p)])
+    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p, F_p).reshape(6, 2, -1)
+    return ((z[:, 0] - z[:, 1]) / (2.0 * _POSE_STEP[:, None])).T
 
 
 def triangulate_pair(
