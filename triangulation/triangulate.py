@@ -225,10 +225,15 @@ def fundamental_from_pose(T_ref_cur, K_cur, K_ref) -> np.ndarray:
 
 
 def _fundamental(R, t, K_cur_inv, K_ref_inv) -> np.ndarray:
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    """(..., 3, 3) unit-norm fundamental matrices of poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
+    tx = np.zeros(t.shape + (3,))
+    tx[..., 0, 1], tx[..., 0, 2], tx[..., 1, 2] = -t[..., 2], t[..., 1], -t[..., 0]
+    tx[..., 1, 0], tx[..., 2, 0], tx[..., 2, 1] = t[..., 2], -t[..., 1], t[..., 0]
     F = K_ref_inv.T @ tx @ R @ K_cur_inv
-    norm = np.linalg.norm(F)
-    return F / norm if norm > 0 else F
+    flat = F.reshape(F.shape[:-2] + (1, 9))
+    norm = np.sqrt((flat @ np.swapaxes(flat, -1, -2))[..., 0])  # (..., 1): |F|, a BLAS dot as np.linalg.norm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(norm[..., None] > 0, F / norm[..., None], F)
 
 
 def sampson_distance(F, uv_cur, uv_ref) -> np.ndarray:
@@ -242,15 +247,18 @@ def sampson_distance(F, uv_cur, uv_ref) -> np.ndarray:
     F = check_array("F", F, (3, 3), finite=True)
     uv_cur = check_array("uv_cur", uv_cur, (None, 2))
     uv_ref = check_array("uv_ref", uv_ref, (len(uv_cur), 2))
-    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
-    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
+    return _sampson(F, _homogeneous(uv_cur), _homogeneous(uv_ref))
+
+
+def _sampson(F, xc, xr) -> np.ndarray:
+    """:func:`sampson_distance` of homogeneous ideal pixels ``xc, xr: (N, 3)``."""
     Fxc = xc @ F.T  # epipolar lines in the reference image
     Ftxr = xr @ F  # epipolar lines in the current image
-    err = np.sum(xr * Fxc, axis=1)
+    err = _rowdot(xr, Fxc)
     grad = np.sqrt(Fxc[:, 0] ** 2 + Fxc[:, 1] ** 2 + Ftxr[:, 0] ** 2 + Ftxr[:, 1] ** 2)
     # rounding bound of err (generous: F itself carries rounding error); the distance is
     # undefined where that bound alone would move it by more than _SAMPSON_RESOLUTION_PX
-    bound = _ROUNDING_FACTOR * np.finfo(np.float64).eps * np.sum(np.abs(xr) * (np.abs(xc) @ np.abs(F).T), axis=1)
+    bound = _ROUNDING_FACTOR * np.finfo(np.float64).eps * _rowdot(np.abs(xr), np.abs(xc) @ np.abs(F).T)
     with np.errstate(divide="ignore", invalid="ignore"):
         defined = bound < _SAMPSON_RESOLUTION_PX * grad
         return np.where(defined, np.abs(err) / grad, np.nan)
@@ -272,7 +280,19 @@ def correct_matches(F, uv_cur, uv_ref) -> tuple[np.ndarray, np.ndarray]:
 
 def _homogeneous(uv) -> np.ndarray:
     """(..., N, 3): pixels ``uv: (..., N, 2)`` with a third coordinate 1."""
-    return np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1)
+    x = np.empty(uv.shape[:-1] + (3,))
+    x[..., :2] = uv
+    x[..., 2] = 1.0
+    return x
+
+
+def _rowdot(a, b) -> np.ndarray:
+    """(...,) ``sum(a * b, axis=-1)`` for a short last axis (2 or 3), summed left to right
+    as ``np.sum`` does there (bit-identical), without its slow reduction over tiny rows."""
+    out = a[..., 0] * b[..., 0]
+    for k in range(1, a.shape[-1]):
+        out = out + a[..., k] * b[..., k]
+    return out
 
 
 def _correct(F, uv_cur, uv_ref):
@@ -288,9 +308,12 @@ def _correct(F, uv_cur, uv_ref):
     lines_ref = xc @ np.swapaxes(F, -1, -2)  # F x': epipolar lines in the reference image
     n_r = lines_ref[..., :2]  # S F x'
     n_c = (xr @ F)[..., :2]  # S F^T x
-    a = np.einsum("...ni,...ij,...nj->...n", n_r, F2, n_c)
-    b = 0.5 * (np.sum(n_r**2, -1) + np.sum(n_c**2, -1))
-    c = np.sum(xr * lines_ref, axis=-1)
+    # a = n_r^T F2 n_c, the products and their order as np.einsum("ni,ij,nj->n") forms them
+    F2b = F2[..., None, :, :]  # (..., 1, 2, 2): broadcasts over the matches
+    a = (n_r[..., 0] * F2b[..., 0, 0] * n_c[..., 0] + n_r[..., 0] * F2b[..., 0, 1] * n_c[..., 1]
+         + n_r[..., 1] * F2b[..., 1, 0] * n_c[..., 0] + n_r[..., 1] * F2b[..., 1, 1] * n_c[..., 1])
+    b = 0.5 * (_rowdot(n_r, n_r) + _rowdot(n_c, n_c))
+    c = _rowdot(xr, lines_ref)
     d = np.sqrt(np.maximum(b * b - a * c, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = np.where(b + d > 0, c / (b + d), 0.0)[..., None]
@@ -298,7 +321,7 @@ def _correct(F, uv_cur, uv_ref):
         dc = lam * n_c
         n_r = n_r - dc @ np.swapaxes(F2, -1, -2)
         n_c = n_c - dr @ F2
-        nn = np.sum(n_r**2, -1) + np.sum(n_c**2, -1)
+        nn = _rowdot(n_r, n_r) + _rowdot(n_c, n_c)
         lam = np.where(nn > 0, lam[..., 0] * 2.0 * d / nn, 0.0)[..., None]
     return uv_cur - lam * n_c, uv_ref - lam * n_r
 
@@ -315,9 +338,9 @@ def _midpoint(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
     f = _homogeneous(uv_cur) @ K_cur_inv.T
     g = (_homogeneous(uv_ref) @ K_ref_inv.T) @ R
     C = (-np.swapaxes(R, -1, -2) @ t[..., None])[..., 0]
-    ff = np.sum(f * f, -1)
-    gg = np.sum(g * g, -1)
-    fg = np.sum(f * g, -1)
+    ff = _rowdot(f, f)
+    gg = _rowdot(g, g)
+    fg = _rowdot(f, g)
     fC = (f @ C[..., None])[..., 0]
     gC = (g @ C[..., None])[..., 0]
     det = ff * gg - fg * fg  # = |f x g|^2
@@ -335,12 +358,10 @@ def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
     return points, fg, sin
 
 
-def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t, F=None):
+def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
     """(..., N) depth (z in the current camera) of corrected, midpoint-triangulated ideal
-    pixels ``uv_cur, uv_ref: (..., N, 2)`` under ``R: (..., 3, 3)``, ``t: (..., 3)`` whose
-    fundamental matrices ``F: (..., 3, 3)`` are computed when not given."""
-    if F is None:
-        F = _fundamental(R, t, K_cur_inv, K_ref_inv)
+    pixels ``uv_cur, uv_ref: (..., N, 2)`` under poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
+    F = _fundamental(R, t, K_cur_inv, K_ref_inv)
     c_cur, c_ref = _correct(F, uv_cur, uv_ref)
     f, g, C, _, lam_c, lam_r = _midpoint(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
     return 0.5 * (lam_c * f[..., 2] + C[..., None, 2] + lam_r * g[..., 2])
@@ -385,8 +406,7 @@ def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarr
     """
     R_p = R @ Rotation.from_rotvec(_POSE_STEPS[:, :3]).as_matrix()  # (12, 3, 3)
     t_p = t + (R @ _POSE_STEPS[:, 3:, None])[..., 0]  # (12, 3)
-    F_p = np.stack([_fundamental(Rk, tk, K_cur_inv, K_ref_inv) for Rk, tk in zip(R_p, t_p)])
-    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p, F_p).reshape(6, 2, -1)
+    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p).reshape(6, 2, -1)
     return ((z[:, 0] - z[:, 1]) / (2.0 * _POSE_STEP[:, None])).T
 
 
@@ -454,7 +474,7 @@ def triangulate_pair(
                                   np.degrees(np.arctan2(sin, cos)), nan.copy(), nan.copy(), conf, status)
 
     F = _fundamental(R, t, K_cur_inv, K_ref_inv)
-    sampson = sampson_distance(F, ic, ir)
+    sampson = _sampson(F, _homogeneous(ic), _homogeneous(ir))
     c_cur, c_ref = _correct(F, ic, ir)
     points, cos, sin = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
     angle = np.degrees(np.arctan2(sin, cos))
