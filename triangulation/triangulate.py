@@ -42,8 +42,10 @@ Method (all batched numpy, no per-point Python loop):
 Depth uncertainty ``sigma_depth`` is first-order: the Jacobian of the current-camera
 depth w.r.t. the four ideal pixel coordinates (and, with a pose covariance, w.r.t. the 6
 pose parameters) is computed by central differences of the whole batched pipeline
-(correction + triangulation), then ``var = sigma_px^2 |J_px|^2 + J_pose S J_pose^T``. It
-therefore captures baseline, triangulation angle and position in the image.
+(correction + triangulation; the eight perturbed pixel sets in one call, the twelve
+perturbed poses in another, each pose with its own fundamental matrix), then
+``var = sigma_px^2 |J_px|^2 + J_pose S J_pose^T``. It therefore captures baseline,
+triangulation angle and position in the image.
 """
 
 from __future__ import annotations
