@@ -408,7 +408,8 @@ def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarr
     """
     R_p = R @ Rotation.from_rotvec(_POSE_STEPS[:, :3]).as_matrix()  # (12, 3, 3)
     t_p = t + (R @ _POSE_STEPS[:, 3:, None])[..., 0]  # (12, 3)
-    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p).reshape(6, 2, -1)
+    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p)
+    z = z.reshape(6, 2, z.shape[-1])  # (axis, +h / -h, N)
     return ((z[:, 0] - z[:, 1]) / (2.0 * _POSE_STEP[:, None])).T
 
 
