@@ -23,6 +23,7 @@ what the images cannot see, the baseline's length). docs/error_model.md.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -75,7 +76,14 @@ class ConsistencySettings:
 
     def threshold(self, dof: int) -> float:
         """The chi2 above which a pair with ``dof`` visible degrees of freedom is refused."""
-        return float(chi2_dist.ppf(self.refuse_probability, max(dof, 1)))
+        return _chi2_quantile(self.refuse_probability, max(int(dof), 1))
+
+
+@functools.lru_cache(maxsize=256)
+def _chi2_quantile(probability: float, dof: int) -> float:
+    """``chi2.ppf(probability, dof)``, memoised: scipy takes ~0.3 ms a call and the pose
+    inflation asks for the same few (probability, dof) of every pooled pair at each update."""
+    return float(chi2_dist.ppf(probability, dof))
 
 
 @dataclass(frozen=True)
@@ -276,10 +284,18 @@ class PoseInflation:
         target = dofs.sum() + r0
 
         caps = [s.threshold(len(d)) for d, _, _ in self._terms]
+        # the pairs grouped by their number of visible dof, so that each bisection step
+        # solves one stacked system per group (the same LAPACK solves, not one call each)
+        groups = []
+        for m in sorted({len(d) for d, _, _ in self._terms}):
+            idx = [i for i, (d, _, _) in enumerate(self._terms) if len(d) == m]
+            groups.append((idx, *(np.stack([self._terms[i][k] for i in idx]) for k in range(3))))
+        chi = np.empty(len(self._terms))
 
         def total(k2):  # each pair's chi2 Winsorised at the refusal threshold: a gross fault counts once
-            return sum(min(float(d @ np.linalg.solve(k2 * S + C, d)), cap)
-                       for (d, S, C), cap in zip(self._terms, caps)) + r0 / k2
+            for idx, d, S, C in groups:  # d: (P, m), S, C: (P, m, m)
+                chi[idx] = (d[:, None, :] @ np.linalg.solve(k2 * S + C, d[:, :, None]))[:, 0, 0]
+            return sum(min(c, cap) for c, cap in zip(chi.tolist(), caps)) + r0 / k2
 
         lo, hi = 1.0, s.max_inflation**2
         if total(lo) <= target:

@@ -42,8 +42,10 @@ Method (all batched numpy, no per-point Python loop):
 Depth uncertainty ``sigma_depth`` is first-order: the Jacobian of the current-camera
 depth w.r.t. the four ideal pixel coordinates (and, with a pose covariance, w.r.t. the 6
 pose parameters) is computed by central differences of the whole batched pipeline
-(correction + triangulation), then ``var = sigma_px^2 |J_px|^2 + J_pose S J_pose^T``. It
-therefore captures baseline, triangulation angle and position in the image.
+(correction + triangulation; the eight perturbed pixel sets in one call, the twelve
+perturbed poses in another, each pose with its own fundamental matrix), then
+``var = sigma_px^2 |J_px|^2 + J_pose S J_pose^T``. It therefore captures baseline,
+triangulation angle and position in the image.
 """
 
 from __future__ import annotations
@@ -225,10 +227,15 @@ def fundamental_from_pose(T_ref_cur, K_cur, K_ref) -> np.ndarray:
 
 
 def _fundamental(R, t, K_cur_inv, K_ref_inv) -> np.ndarray:
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    """(..., 3, 3) unit-norm fundamental matrices of poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
+    tx = np.zeros(t.shape + (3,))
+    tx[..., 0, 1], tx[..., 0, 2], tx[..., 1, 2] = -t[..., 2], t[..., 1], -t[..., 0]
+    tx[..., 1, 0], tx[..., 2, 0], tx[..., 2, 1] = t[..., 2], -t[..., 1], t[..., 0]
     F = K_ref_inv.T @ tx @ R @ K_cur_inv
-    norm = np.linalg.norm(F)
-    return F / norm if norm > 0 else F
+    flat = F.reshape(F.shape[:-2] + (1, 9))
+    norm = np.sqrt((flat @ np.swapaxes(flat, -1, -2))[..., 0])  # (..., 1): |F|, a BLAS dot as np.linalg.norm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(norm[..., None] > 0, F / norm[..., None], F)
 
 
 def sampson_distance(F, uv_cur, uv_ref) -> np.ndarray:
@@ -242,15 +249,18 @@ def sampson_distance(F, uv_cur, uv_ref) -> np.ndarray:
     F = check_array("F", F, (3, 3), finite=True)
     uv_cur = check_array("uv_cur", uv_cur, (None, 2))
     uv_ref = check_array("uv_ref", uv_ref, (len(uv_cur), 2))
-    xc = np.column_stack([uv_cur, np.ones(len(uv_cur))])
-    xr = np.column_stack([uv_ref, np.ones(len(uv_ref))])
+    return _sampson(F, _homogeneous(uv_cur), _homogeneous(uv_ref))
+
+
+def _sampson(F, xc, xr) -> np.ndarray:
+    """:func:`sampson_distance` of homogeneous ideal pixels ``xc, xr: (N, 3)``."""
     Fxc = xc @ F.T  # epipolar lines in the reference image
     Ftxr = xr @ F  # epipolar lines in the current image
-    err = np.sum(xr * Fxc, axis=1)
+    err = _rowdot(xr, Fxc)
     grad = np.sqrt(Fxc[:, 0] ** 2 + Fxc[:, 1] ** 2 + Ftxr[:, 0] ** 2 + Ftxr[:, 1] ** 2)
     # rounding bound of err (generous: F itself carries rounding error); the distance is
     # undefined where that bound alone would move it by more than _SAMPSON_RESOLUTION_PX
-    bound = _ROUNDING_FACTOR * np.finfo(np.float64).eps * np.sum(np.abs(xr) * (np.abs(xc) @ np.abs(F).T), axis=1)
+    bound = _ROUNDING_FACTOR * np.finfo(np.float64).eps * _rowdot(np.abs(xr), np.abs(xc) @ np.abs(F).T)
     with np.errstate(divide="ignore", invalid="ignore"):
         defined = bound < _SAMPSON_RESOLUTION_PX * grad
         return np.where(defined, np.abs(err) / grad, np.nan)
@@ -271,12 +281,11 @@ def correct_matches(F, uv_cur, uv_ref) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _homogeneous(uv) -> np.ndarray:
-    """(N, 3) float64 ``[u, v, 1]`` of ``uv: (N, 2)``: ``np.column_stack([uv, ones])`` without its
-    generic overhead (these run thousands of times per sequence, in the pose Jacobians)."""
-    out = np.empty((len(uv), 3))
-    out[:, :2] = uv
-    out[:, 2] = 1.0
-    return out
+    """(..., N, 3): pixels ``uv: (..., N, 2)`` with a third coordinate 1."""
+    x = np.empty(uv.shape[:-1] + (3,))
+    x[..., :2] = uv
+    x[..., 2] = 1.0
+    return x
 
 
 def _cross(a, b) -> np.ndarray:
@@ -294,52 +303,85 @@ def _cross(a, b) -> np.ndarray:
     return out
 
 
+def _rowdot(a, b) -> np.ndarray:
+    """(...,) ``sum(a * b, axis=-1)`` for a short last axis (2 or 3), summed left to right
+    as ``np.sum`` does there (bit-identical), without its slow reduction over tiny rows."""
+    out = a[..., 0] * b[..., 0]
+    for k in range(1, a.shape[-1]):
+        out = out + a[..., k] * b[..., k]
+    return out
+
+
 def _correct(F, uv_cur, uv_ref):
+    """Lindstrom's ``niter2`` for ``F: (..., 3, 3)`` and pixels ``uv_cur, uv_ref: (..., N, 2)``.
+
+    Leading dimensions broadcast: one fundamental matrix per batch of matches (the pose
+    Jacobian corrects the same matches under twelve perturbed poses in one call).
+    """
     # Lindstrom's notation: x = x_ref, x' = x_cur, E = F, S = [I2 0].
     xc = _homogeneous(uv_cur)
     xr = _homogeneous(uv_ref)
-    F2 = F[:2, :2]
-    n_r = (xc @ F.T)[:, :2]  # S F x'
-    n_c = (xr @ F)[:, :2]  # S F^T x
-    a = np.einsum("ni,ij,nj->n", n_r, F2, n_c)
-    b = 0.5 * (np.sum(n_r**2, 1) + np.sum(n_c**2, 1))
-    c = np.sum(xr * (xc @ F.T), axis=1)
+    F2 = F[..., :2, :2]
+    lines_ref = xc @ np.swapaxes(F, -1, -2)  # F x': epipolar lines in the reference image
+    n_r = lines_ref[..., :2]  # S F x'
+    n_c = (xr @ F)[..., :2]  # S F^T x
+    # a = n_r^T F2 n_c, the products and their order as np.einsum("ni,ij,nj->n") forms them
+    F2b = F2[..., None, :, :]  # (..., 1, 2, 2): broadcasts over the matches
+    a = (n_r[..., 0] * F2b[..., 0, 0] * n_c[..., 0] + n_r[..., 0] * F2b[..., 0, 1] * n_c[..., 1]
+         + n_r[..., 1] * F2b[..., 1, 0] * n_c[..., 0] + n_r[..., 1] * F2b[..., 1, 1] * n_c[..., 1])
+    b = 0.5 * (_rowdot(n_r, n_r) + _rowdot(n_c, n_c))
+    c = _rowdot(xr, lines_ref)
     d = np.sqrt(np.maximum(b * b - a * c, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        lam = np.where(b + d > 0, c / (b + d), 0.0)
-        dr = lam[:, None] * n_r
-        dc = lam[:, None] * n_c
-        n_r = n_r - dc @ F2.T
+        lam = np.where(b + d > 0, c / (b + d), 0.0)[..., None]
+        dr = lam * n_r
+        dc = lam * n_c
+        n_r = n_r - dc @ np.swapaxes(F2, -1, -2)
         n_c = n_c - dr @ F2
-        nn = np.sum(n_r**2, 1) + np.sum(n_c**2, 1)
-        lam = np.where(nn > 0, lam * 2.0 * d / nn, 0.0)
-    return uv_cur - lam[:, None] * n_c, uv_ref - lam[:, None] * n_r
+        nn = _rowdot(n_r, n_r) + _rowdot(n_c, n_c)
+        lam = np.where(nn > 0, lam[..., 0] * 2.0 * d / nn, 0.0)[..., None]
+    return uv_cur - lam * n_c, uv_ref - lam * n_r
 
 
-def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
-    """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
-    f = _homogeneous(uv_cur) @ K_cur_inv.T  # cur rays, z = 1
-    g = _homogeneous(uv_ref) @ K_ref_inv.T @ R  # ref rays in cur frame (R^T f_ref)
-    C = -R.T @ t  # reference camera centre in the current frame
-    ff = np.sum(f * f, 1)
-    gg = np.sum(g * g, 1)
-    fg = np.sum(f * g, 1)
-    fC = f @ C
-    gC = g @ C
+def _midpoint(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """Midpoint triangulation of ideal pixels ``uv_cur, uv_ref: (..., N, 2)`` under poses
+    ``R: (..., 3, 3)``, ``t: (..., 3)`` (leading dimensions broadcast).
+
+    Returns ``(f, g, C, fg, lam_c, lam_r)``: the viewing rays in the current frame (f: z = 1
+    current rays, g: reference rays ``R^T f_ref``; (..., N, 3)), the reference camera centre
+    C (..., 3) in the current frame, ``f . g`` (..., N), and the ray lengths (..., N) of the
+    closest points ``lam_c f`` and ``C + lam_r g`` (NaN for parallel rays).
+    """
+    f = _homogeneous(uv_cur) @ K_cur_inv.T
+    g = (_homogeneous(uv_ref) @ K_ref_inv.T) @ R
+    C = (-np.swapaxes(R, -1, -2) @ t[..., None])[..., 0]
+    ff = _rowdot(f, f)
+    gg = _rowdot(g, g)
+    fg = _rowdot(f, g)
+    fC = (f @ C[..., None])[..., 0]
+    gC = (g @ C[..., None])[..., 0]
     det = ff * gg - fg * fg  # = |f x g|^2
     with np.errstate(divide="ignore", invalid="ignore"):
         lam_c = np.where(det > 0, (gg * fC - fg * gC) / det, np.nan)
         lam_r = np.where(det > 0, (fg * fC - ff * gC) / det, np.nan)
+    return f, g, C, fg, lam_c, lam_r
+
+
+def _rays_and_points(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """Midpoint triangulation of ideal pixels -> (points_cur (N, 3), cos/sin of ray angle)."""
+    f, g, C, fg, lam_c, lam_r = _midpoint(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t)
     points = 0.5 * (lam_c[:, None] * f + C + lam_r[:, None] * g)
     sin = np.linalg.norm(_cross(f, g), axis=1)
     return points, fg, sin
 
 
 def _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t):
+    """(..., N) depth (z in the current camera) of corrected, midpoint-triangulated ideal
+    pixels ``uv_cur, uv_ref: (..., N, 2)`` under poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
     F = _fundamental(R, t, K_cur_inv, K_ref_inv)
     c_cur, c_ref = _correct(F, uv_cur, uv_ref)
-    points, _, _ = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
-    return points[:, 2]
+    f, g, C, _, lam_c, lam_r = _midpoint(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
+    return 0.5 * (lam_c * f[..., 2] + C[..., None, 2] + lam_r * g[..., 2])
 
 
 def _depth_jacobian_pixels(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
@@ -356,36 +398,36 @@ def _depth_jacobian_pixels(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.nda
     return ((z[:, 0] - z[:, 1]) / (2.0 * _STEP_PX)).T
 
 
+#: (6,) central-difference step of each pose tangent axis (rotation rad, then translation m)
+_POSE_STEP = np.array([_STEP_ROT] * 3 + [_STEP_TRANS] * 3)
+
+
+def _pose_steps() -> np.ndarray:
+    """(12, 6): the tangent-space perturbations of the pose Jacobian, +h then -h per axis."""
+    axis = np.arange(6)
+    xi = np.zeros((6, 2, 6))
+    xi[axis, 0, axis] = _POSE_STEP
+    xi[axis, 1, axis] = -_POSE_STEP
+    return xi.reshape(12, 6)
+
+
+_POSE_STEPS = _pose_steps()
+#: (12, 3, 3) ``Exp`` of the rotation part of each perturbation (constants: computed once)
+_POSE_STEP_ROTATIONS = Rotation.from_rotvec(_POSE_STEPS[:, :3]).as_matrix()
+
+
 def _depth_jacobian_pose(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R, t) -> np.ndarray:
     """(N, 6) d depth / d xi for ``T_ref_cur * Exp(xi)``, ``xi = (rotation rad, translation m)``.
 
     First order, ``T * Exp(xi)`` has rotation ``R Exp(w)`` and translation ``t + R rho``
-    (the GTSAM ``Pose3`` retraction convention).
+    (the GTSAM ``Pose3`` retraction convention). Central differences: the twelve perturbed
+    poses (+h, -h per axis) are triangulated in one batched call.
     """
-    J = np.empty((len(uv_cur), 6))
-    for k in range(6):
-        z = []
-        for dR, rho in _POSE_STEPS[k]:
-            z.append(_depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R @ dR, t + R @ rho))
-        J[:, k] = (z[0] - z[1]) / (2.0 * (_STEP_ROT if k < 3 else _STEP_TRANS))
-    return J
-
-
-def _pose_steps() -> tuple:
-    """Per tangent coordinate k, the (+step, -step) perturbations ``(Exp(w) as (3, 3), rho (3,))``
-    of :func:`_depth_jacobian_pose` (constants: computed once, not per call)."""
-    steps = []
-    for k in range(6):
-        pair = []
-        for sign in (1.0, -1.0):
-            xi = np.zeros(6)
-            xi[k] = sign * (_STEP_ROT if k < 3 else _STEP_TRANS)
-            pair.append((Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:]))
-        steps.append(tuple(pair))
-    return tuple(steps)
-
-
-_POSE_STEPS = _pose_steps()
+    R_p = R @ _POSE_STEP_ROTATIONS  # (12, 3, 3)
+    t_p = t + (R @ _POSE_STEPS[:, 3:, None])[..., 0]  # (12, 3)
+    z = _depth(uv_cur, uv_ref, K_cur_inv, K_ref_inv, R_p, t_p)
+    z = z.reshape(6, 2, z.shape[-1])  # (axis, +h / -h, N)
+    return ((z[:, 0] - z[:, 1]) / (2.0 * _POSE_STEP[:, None])).T
 
 
 def triangulate_pair(
@@ -452,7 +494,7 @@ def triangulate_pair(
                                   np.degrees(np.arctan2(sin, cos)), nan.copy(), nan.copy(), conf, status)
 
     F = _fundamental(R, t, K_cur_inv, K_ref_inv)
-    sampson = sampson_distance(F, ic, ir)
+    sampson = _sampson(F, _homogeneous(ic), _homogeneous(ir))
     c_cur, c_ref = _correct(F, ic, ir)
     points, cos, sin = _rays_and_points(c_cur, c_ref, K_cur_inv, K_ref_inv, R, t)
     angle = np.degrees(np.arctan2(sin, cos))

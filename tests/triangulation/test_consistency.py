@@ -106,3 +106,28 @@ def test_settings_are_validated():
         ConsistencySettings(max_inflation=0.5)
     with pytest.raises(SettingsError):
         ConsistencySettings(max_residual_px=float("nan"))
+
+
+def test_inflation_pools_pairs_of_different_dof_by_the_documented_equation():
+    # pairs seeing 3, 5 and 6 dof (solved in stacked groups), some Winsorised: the returned k
+    # solves sum_i min(d_i^T (k^2 S_i + C_i)^-1 d_i, cap_i) + r0 / k^2 = sum_i r_i + r0
+    rng = np.random.default_rng(3)
+    settings = ConsistencySettings(max_inflation=10.0)
+    infl = PoseInflation(settings)
+    terms = []
+    for i in range(12):
+        m = (3, 5, 6)[i % 3]
+        S = np.diag(rng.uniform(0.5, 2.0, m))
+        C = 0.1 * np.eye(m)
+        d = rng.normal(0, 2.0, m) * np.sqrt(np.diag(S)) * (30.0 if i == 4 else 1.0)  # pair 4: a gross fault
+        terms.append((d, S, C))
+        infl.update(PoseConsistency(100, m, 0.0, 0.0, 0.0, 0.0, 0.5, terms=(d, S, C)))
+    k2 = infl.value**2
+    assert 1.0 < infl.value < settings.max_inflation
+
+    def total(k2):
+        return sum(min(float(d @ np.linalg.solve(k2 * S + C, d)), settings.threshold(len(d)))
+                   for d, S, C in terms) + settings.prior_pairs * np.mean([len(d) for d, _, _ in terms]) / k2
+
+    target = sum(len(d) for d, _, _ in terms) * (1 + settings.prior_pairs / len(terms))
+    assert total(k2 / 1.001) >= target >= total(k2)  # bracketed to the bisection's tolerance
