@@ -1,11 +1,13 @@
-"""Triangulation with known metric poses: two views (``triangulate``), N-view tracks with
-pose uncertainty (``multiview``), whether the images agree with a stated pose
-(``consistency``) and how precise a pair's points would be (``precision``).
+"""Triangulation with known metric poses: two views (``triangulate``) on their epipolar
+geometry (``epipolar``), N-view tracks with pose uncertainty (``multiview``), whether the
+images agree with a stated pose (``consistency``) and how precise a pair's points would be
+(``precision``).
 
 A leaf layer: it imports only :mod:`vio_core` (and numpy, scipy).
 """
 
 from .consistency import ConsistencySettings, PoseConsistency, PoseInflation, pose_consistency
+from .epipolar import correct_matches, fundamental_from_pose, sampson_distance
 from .multiview import (
     MultiviewPoints,
     MultiviewSettings,
@@ -19,9 +21,6 @@ from .triangulate import (
     PointStatus,
     TriangulatedPoints,
     TriangulationSettings,
-    correct_matches,
-    fundamental_from_pose,
-    sampson_distance,
     triangulate_pair,
 )
 

@@ -231,7 +231,7 @@ def test_optimal_correction_is_minimal_and_exact():
 
 
 def test_cross_and_homogeneous_equal_numpy_bit_for_bit():
-    from triangulation.triangulate import _cross, _homogeneous
+    from triangulation.epipolar import _cross, _homogeneous
 
     rng = np.random.default_rng(1)
     for n in (0, 1, 5, 4097):
