@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from vio_core.checks import check_array
 
@@ -161,6 +162,23 @@ def needed_iterations(inlier_ratio: float, sample_size: int, confidence: float) 
     return math.log(1.0 - confidence) / math.log1p(-p_good)
 
 
+@functools.lru_cache(maxsize=1024)
+def scale_inflation(dof: int, confidence: float) -> float:
+    """Factor on a reduced chi-square estimated from ``dof`` degrees of freedom that gives
+    its upper confidence bound at ``confidence``: ``dof / q`` with ``q`` the chi-square(dof)
+    quantile at ``1 - confidence`` (``2 * gammaincinv(dof / 2, 1 - confidence)``); 1 for
+    ``confidence`` 0 (the point estimate). Under Gaussian residuals, the residual variance is
+    at most ``chi2 * scale_inflation(dof, confidence)`` with probability ``confidence``.
+
+    Args:
+        dof: degrees of freedom, >= 1 (inliers minus fitted parameters).
+        confidence: in [0, 1).
+    """
+    if confidence <= 0.0:
+        return 1.0
+    return float(dof / (2.0 * gammaincinv(0.5 * dof, 1.0 - confidence)))
+
+
 def exclusion_note(pts: Points) -> str:
     return f"; {pts.n_excluded} point(s) excluded (non-finite, depth <= 0 or weight <= 0)" if pts.n_excluded else ""
 
@@ -293,7 +311,9 @@ def finish(pts: Points, alpha: float, beta: float, inl: np.ndarray, w_pts: np.nd
         r2 = spread = mean_fit = rel_spread = math.nan
     cov = _NAN_COV
     if n_in > n_params:
-        chi2 = chi2_sum / (n_in - n_params)
+        dof = n_in - n_params
+        # the scatter's upper confidence bound: a few residuals may be luckily small
+        chi2 = chi2_sum / dof * scale_inflation(dof, s.scale_confidence)
         sw, swd, swdd = w[ONE], w[D], w[DD]
         if n_params == 2:
             det = sw * swdd - swd * swd

@@ -111,6 +111,7 @@ SETTING_RANGES: dict[str, str] = {
     "RansacSettings.min_inlier_ratio": "[0, 1]",
     "RansacSettings.min_relative_spread": "[0, inf)",
     "RansacSettings.scale_only_min_points": "[1, inf)",
+    "RansacSettings.scale_confidence": "[0, 1)",
     "KalmanSettings.process_sigma": "[0, inf)",
     "KalmanSettings.measurement_floor": "[0, inf)",
     "KalmanSettings.min_reference_fraction": "(0, 1]",
