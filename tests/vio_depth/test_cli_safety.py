@@ -229,9 +229,21 @@ def test_runs_without_metric_depth_say_why_with_exit_3(mini_street, tmp_path, ca
 
 
 def test_a_healthy_short_run_is_not_flagged(mini_street, tmp_path, capsys):
-    seq = mini_street(2)
+    seq = mini_street(6)
     rc, _, err = _run(["run", seq, "--out", tmp_path / "o"], capsys)
     assert rc == 0 and err == ""
+
+
+def test_a_first_pair_on_few_points_is_refused_not_written_wrong(mini_street, tmp_path, capsys):
+    """The street sample's first two frames (0.4 m apart, 21 inlier points) were written with
+    5.7 % AbsRel while predicting 2.7 %: the fit trusted the scatter of 21 residuals as if it
+    were exact. With its upper confidence bound the error predicted exceeds the bound, the
+    frames are refused, and the run says it wrote too little (exit 3)."""
+    seq = mini_street(2)
+    rc, _, err = _run(["run", seq, "--out", tmp_path / "o"], capsys)
+    rows = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")[1]
+    assert rc == EXIT_NOTHING_CAME_OUT and "no metric depth" in err
+    assert rows[1]["status"] == "uncertain_fit" and rows[1]["predicted_error"] > 0.03
 
 
 def test_frames_that_share_an_image_name_are_refused(tmp_path):

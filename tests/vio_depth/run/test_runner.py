@@ -93,7 +93,7 @@ def test_library_is_silent_and_cli_verbosity_shows_log_records(tmp_path, capsys,
     assert any(isinstance(h, logging.NullHandler) for h in logging.getLogger("vio_depth").handlers)
     if not (STREET / "sequence.json").exists():
         pytest.skip("bundled street sample missing")
-    assert main(["-v", "run", str(STREET), "--out", str(tmp_path / "o"), "--max-frames", "2", "--no-progress"]) == 0
+    assert main(["-v", "run", str(STREET), "--out", str(tmp_path / "o"), "--max-frames", "6", "--no-progress"]) == 0
     assert "INFO" in capsys.readouterr().err
-    assert main(["-q", "run", str(STREET), "--out", str(tmp_path / "p"), "--max-frames", "2", "--no-progress"]) == 0
+    assert main(["-q", "run", str(STREET), "--out", str(tmp_path / "p"), "--max-frames", "6", "--no-progress"]) == 0
     assert capsys.readouterr().err == ""
