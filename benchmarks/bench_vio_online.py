@@ -40,20 +40,17 @@ import numpy as np  # noqa: E402
 import realtime_data as data  # noqa: E402
 from bench_realtime import DEFAULT_CACHE  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
-from vio_depth.disparity import FileDisparity  # noqa: E402
-from vio_depth.disparity.sources import SimulatedDisparitySource  # noqa: E402
+from vio_depth.disparity import FileDisparity, SimulatedDisparitySource  # noqa: E402
+from vio_depth.evaluation import umeyama_alignment  # noqa: E402
 
 SEQUENCES = {"asl_room": ("indoor", None), "room": ("indoor", 10.0), "street": (None, 80.0)}
 
 
 def aligned_ate(est: np.ndarray, ref: np.ndarray) -> float:
     """RMSE (metres) of positions ``est: (N, 3)`` after the rigid motion that best maps them onto
-    ``ref: (N, 3)`` (Umeyama, no scale)."""
-    ma, mb = est.mean(0), ref.mean(0)
-    U, _, Vt = np.linalg.svd((est - ma).T @ (ref - mb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return float(np.sqrt(np.mean(np.sum((est @ R.T + (mb - R @ ma) - ref) ** 2, axis=1))))
+    ``ref: (N, 3)`` (:func:`vio_depth.evaluation.umeyama_alignment`, no scale)."""
+    R, t, _ = umeyama_alignment(est, ref)
+    return float(np.sqrt(np.mean(np.sum((est @ R.T + t - ref) ** 2, axis=1))))
 
 
 def with_changes(settings: PipelineSettings, changes: dict) -> PipelineSettings:

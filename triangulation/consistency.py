@@ -23,18 +23,17 @@ what the images cannot see, the baseline's length). docs/error_model.md.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_dist
 
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import SettingsError
+from vio_core.stats import chi2_quantile
 
 
 _STEP = 1e-6  # central-difference step of the residual Jacobian (rad, and baselines for translation)
@@ -76,14 +75,7 @@ class ConsistencySettings:
 
     def threshold(self, dof: int) -> float:
         """The chi2 above which a pair with ``dof`` visible degrees of freedom is refused."""
-        return _chi2_quantile(self.refuse_probability, max(int(dof), 1))
-
-
-@functools.lru_cache(maxsize=256)
-def _chi2_quantile(probability: float, dof: int) -> float:
-    """``chi2.ppf(probability, dof)``, memoised: scipy takes ~0.3 ms a call and the pose
-    inflation asks for the same few (probability, dof) of every pooled pair at each update."""
-    return float(chi2_dist.ppf(probability, dof))
+        return chi2_quantile(self.refuse_probability, max(int(dof), 1))
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""Shared primitives of every vio-depth layer: errors, array checks, the camera model, rigid transforms.
+"""Shared primitives of every vio-depth layer: errors, array checks, the camera model, rigid transforms,
+memoised chi-square quantiles.
 
 The lowest layer: ``matchers``, ``triangulation`` and ``vio_depth`` import from here, and
 this package imports none of them (tests/test_layering.py checks it).
@@ -31,6 +32,7 @@ from .geometry import (
 )
 from .npyfile import load_array
 from .settings import Presets, override, require_positive, to_plain, toml_dumps, toml_loads
+from .stats import chi2_quantile
 
 __all__ = [
     "Camera",
@@ -46,6 +48,7 @@ __all__ = [
     "UnknownNameError",
     "VioDepthError",
     "check_array",
+    "chi2_quantile",
     "check_image",
     "check_transform",
     "invert_transform",

@@ -8,9 +8,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv
 
 from vio_core.checks import check_array
+from vio_core.stats import chi2_quantile
 
 from .affine import _NAN_COV, AffineFit, FitStatus, RansacSettings
 
@@ -162,11 +162,10 @@ def needed_iterations(inlier_ratio: float, sample_size: int, confidence: float) 
     return math.log(1.0 - confidence) / math.log1p(-p_good)
 
 
-@functools.lru_cache(maxsize=1024)
 def scale_inflation(dof: int, confidence: float) -> float:
     """Factor on a reduced chi-square estimated from ``dof`` degrees of freedom that gives
     its upper confidence bound at ``confidence``: ``dof / q`` with ``q`` the chi-square(dof)
-    quantile at ``1 - confidence`` (``2 * gammaincinv(dof / 2, 1 - confidence)``); 1 for
+    quantile at ``1 - confidence`` (:func:`vio_core.stats.chi2_quantile`); 1 for
     ``confidence`` 0 (the point estimate). Under Gaussian residuals, the residual variance is
     at most ``chi2 * scale_inflation(dof, confidence)`` with probability ``confidence``.
 
@@ -176,7 +175,7 @@ def scale_inflation(dof: int, confidence: float) -> float:
     """
     if confidence <= 0.0:
         return 1.0
-    return float(dof / (2.0 * gammaincinv(0.5 * dof, 1.0 - confidence)))
+    return float(dof / chi2_quantile(1.0 - confidence, dof))
 
 
 def exclusion_note(pts: Points) -> str:
