@@ -88,6 +88,7 @@ import realtime_data as data  # noqa: E402
 
 from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
+from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
 
@@ -140,7 +141,7 @@ class Replay:
 
 
 def replay(timestamps: np.ndarray, process: Callable[[int], float], *, rate_scale: float | None = 1.0,
-           queue_size: int = 1) -> Replay:
+           queue_size: int = 1, wall_clock: bool = False) -> Replay:
     """Stream frames through ``process`` (``process(i)`` handles frame ``i`` and returns the
     seconds it took) with a bounded queue that drops the oldest waiting frame when full.
 
@@ -149,6 +150,10 @@ def replay(timestamps: np.ndarray, process: Callable[[int], float], *, rate_scal
         rate_scale: playback speed (1 = recorded rate), or None: as fast as possible (frame
             ``i + 1`` arrives when frame ``i``'s result is out).
         queue_size: frames that may wait while one is processed (>= 1).
+        wall_clock: at the recorded rate, wait for each arrival for real and read the clock
+            (``perf_counter``) instead of advancing a virtual one by the processing times: a
+            worker process (the landmark window's, ``--vio-backends process``) computes while
+            the consumer waits, which a virtual clock that skips idle time would not allow.
     """
     if queue_size < 1:
         raise ValueError(f"queue_size must be >= 1, got {queue_size}")
@@ -168,6 +173,7 @@ def replay(timestamps: np.ndarray, process: Callable[[int], float], *, rate_scal
     out = Replay((np.asarray(timestamps, float) - timestamps[0]) / rate_scale)
     queue: deque[int] = deque()
     clock, nxt = 0.0, 0
+    origin = time.perf_counter()
     while nxt < n or queue:
         while nxt < n and out.arrivals[nxt] <= clock:
             queue.append(nxt)
@@ -175,12 +181,15 @@ def replay(timestamps: np.ndarray, process: Callable[[int], float], *, rate_scal
             if len(queue) > queue_size:
                 out.dropped.append(queue.popleft())
         if not queue:
+            if wall_clock:
+                time.sleep(max(float(out.arrivals[nxt]) - (time.perf_counter() - origin), 0.0))
             clock = float(out.arrivals[nxt])
             continue
         i = queue.popleft()
         out.processed.append(i)
         out.starts.append(clock)
-        clock += process(i)
+        seconds = process(i)
+        clock = max(time.perf_counter() - origin, clock) if wall_clock else clock + seconds
         out.finishes.append(clock)
     return out
 
@@ -191,11 +200,14 @@ class StreamRunner:
     the previous push; times each push; keeps each result's timings and whether it had depth."""
 
     def __init__(self, ds: data.StreamData, prefetch: int = 0, matcher: str = "sift",
-                 edge_guard: float | None = None, points: str | None = None):
+                 edge_guard: float | None = None, points: str | None = None,
+                 backend: WindowBackendSettings | None = None):
         self.ds = ds
         settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher, points=points)
         if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
             settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
+        if backend is not None:  # where the odometry's window updates run (VioSettings.backend)
+            settings = replace(settings, poses=replace(settings.poses, backend=backend))
         self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind,
                                   prefetch=prefetch)
         self.imu_done = -np.inf
@@ -367,25 +379,31 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
 
 def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
                  prefetch: bool = False, matcher: str = "sift", edge_guard: float | None = None,
-                 points: str | None = None) -> Row:
+                 points: str | None = None, backend: WindowBackendSettings | None = None) -> Row:
     if warmup:
-        warm = StreamRunner(ds, 0, matcher, edge_guard, points)
+        warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points)
+    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend)
+    # (the odometry, and its worker process, start with the first frame: the worker's start-up,
+    # beside the initialisation's frames, is inside the timed row)
+    process_backend = backend is not None and backend.kind == "process"
     reset_peak_rss()
     if prefetch:
         with opencv_threads(1), blas_threads(1), TorchThreads(1):
             result = runner.overlapped(PREFETCH_WINDOW)
         mode = "prefetch"
     else:
-        result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size)
+        result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size,
+                        wall_clock=process_backend)
         mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
+    label = matcher + ("" if edge_guard is None else f", guard {edge_guard:g}") + (
+        "" if points is None else f", points {points}")
+    if process_backend:
+        label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "")
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
-               peak_rss_mib(), dict(runner.statuses),
-               matcher + ("" if edge_guard is None else f", guard {edge_guard:g}")
-               + ("" if points is None else f", points {points}"))
+               peak_rss_mib(), dict(runner.statuses), label)
 
 
 def baseline_row(ds: data.StreamData, baseline) -> Row:
@@ -453,6 +471,14 @@ def main(argv=None) -> int:
                         help="comma-separated --points sources of the vio datasets' rows, one row set each (sfm: "
                              "two-view pairs matched and triangulated again, today's default; vio: the odometry's "
                              "own landmarks, no second matching)")
+    parser.add_argument("--vio-backends", default="inline",
+                        help="comma-separated, where the vio rows' window updates run, one row set each: inline "
+                             "(today's default: a keyframe's frame waits for its update) and/or process (a worker "
+                             "process beside the tracking; recorded-rate rows then run on the wall clock)")
+    parser.add_argument("--vio-lag", type=int, default=WindowBackendSettings().lag_frames,
+                        help="process backend: frames after a keyframe at which its update is taken over")
+    parser.add_argument("--vio-when-ready", action="store_true",
+                        help="process backend: take an update over as soon as it is ready (timing-dependent)")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
@@ -466,6 +492,13 @@ def main(argv=None) -> int:
     vio_points = [p for p in args.vio_points.split(",") if p]
     if not vio_points or not set(vio_points) <= {"sfm", "vio"}:
         parser.error(f"unknown --vio-points {args.vio_points!r} (valid: sfm, vio)")
+    try:
+        backends = [WindowBackendSettings(b, args.vio_lag, args.vio_when_ready)
+                    for b in args.vio_backends.split(",") if b]
+    except ValueError as exc:
+        parser.error(str(exc))
+    if not backends:
+        parser.error("--vio-backends: none given (valid: inline, process)")
     if unknown:
         parser.error(f"unknown dataset(s) {', '.join(unknown)} (valid: {', '.join(data.DATASETS)})")
     if not modes or not set(modes) <= {"realtime", "afap", "prefetch"}:
@@ -488,13 +521,15 @@ def main(argv=None) -> int:
         print(f"\n## {name} ({ds.size}, {len(ds)} frames, {rate:.1f} Hz, --poses {ds.poses}, --pairing "
               f"{ds.pairing}): {ds.description}", flush=True)
         sources = vio_points if ds.poses == "vio" else [None]
-        for matcher, points, mode in itertools.product(matchers, sources, modes):
+        where = backends if ds.poses == "vio" else [None]
+        for matcher, points, backend, mode in itertools.product(matchers, sources, where, modes):
             if mode == "prefetch" and matcher == "klt":
                 continue  # a tracker follows the previous frame: nothing to extract ahead
             row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
                                prefetch=mode == "prefetch", matcher=matcher,
                                edge_guard=args.klt_edge_guard if matcher == "klt" else None,
-                               points=None if points == "sfm" else points)
+                               points=None if points == "sfm" else points,
+                               backend=None if backend is None or backend.kind == "inline" else backend)
             rows.append(row)
             print(f"  {row.matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:

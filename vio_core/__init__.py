@@ -18,6 +18,7 @@ from .errors import (
     ShapeError,
     UnknownNameError,
     VioDepthError,
+    WorkerError,
     lookup,
 )
 from .geometry import (
@@ -47,6 +48,7 @@ __all__ = [
     "ShapeError",
     "UnknownNameError",
     "VioDepthError",
+    "WorkerError",
     "check_array",
     "chi2_quantile",
     "check_image",

@@ -82,3 +82,8 @@ def lookup(kind: str, name: str, table):
         return table[name]
     except (KeyError, TypeError):
         raise UnknownNameError(kind, name, table) from None
+
+
+class WorkerError(VioDepthError):
+    """A worker process (e.g. the landmark window's, :mod:`vio_depth.landmarks.backend`) died
+    or failed unexpectedly. The message carries the worker's own traceback when it had one."""

@@ -6,8 +6,9 @@ gives the keyframes' motion: :class:`MotionFactorSource`, the default
 out), ``graph`` (its factors and Levenberg-Marquardt), ``marginalisation``,
 ``covariance`` (the keyframe poses' joint covariance), ``query`` (a frame's metric
 points), ``resection`` (pose refinement of a non-keyframe), ``estimator`` (per-frame
-driver: matching, keyframe choice), ``settings`` (pose-prior presets per dataset kind,
-window settings), ``types``.
+driver: matching, keyframe choice), ``snapshot`` (a read-only, picklable copy of the
+window's state), ``backend`` (the window in a worker process), ``settings`` (pose-prior
+presets per dataset kind, window settings, where the window runs), ``types``.
 N-view triangulation lives in :mod:`triangulation.multiview`.
 
 Typical use (one call per frame, features extracted once by the caller)::
@@ -17,19 +18,29 @@ Typical use (one call per frame, features extracted once by the caller)::
     out.points.uv, out.points.depth, out.points.sigma_depth   # for the rescaler
 """
 
+from .backend import ProcessWindow
 from .covariance import PoseCovariances, prior_covariance
 from .estimator import FrameLandmarks, LandmarkEstimator
 from .graph import WindowGraph
 from .marginalisation import marginalise_factors
 from .motion import MotionFactors, MotionFactorSource, PosePriorFactors
 from .resection import PoseRefinement, refine_pose
-from .settings import POSE_PRIOR_PRESETS, LandmarkSettings, PosePriorSettings, pose_prior_preset
+from .settings import (
+    POSE_PRIOR_PRESETS,
+    WINDOW_BACKENDS,
+    LandmarkSettings,
+    PosePriorSettings,
+    WindowBackendSettings,
+    pose_prior_preset,
+)
+from .snapshot import WindowSnapshot
 from .tracks import FrameMatches, Observations, TrackTable
 from .types import KeyframeInput, LandmarkPoints, UpdateStatus, WindowUpdate, WorldLandmarks
 from .window import LandmarkWindow
 
 __all__ = [
     "POSE_PRIOR_PRESETS",
+    "WINDOW_BACKENDS",
     "FrameLandmarks",
     "FrameMatches",
     "KeyframeInput",
@@ -44,9 +55,12 @@ __all__ = [
     "PosePriorFactors",
     "PosePriorSettings",
     "PoseRefinement",
+    "ProcessWindow",
     "TrackTable",
     "UpdateStatus",
+    "WindowBackendSettings",
     "WindowGraph",
+    "WindowSnapshot",
     "WindowUpdate",
     "WorldLandmarks",
     "marginalise_factors",

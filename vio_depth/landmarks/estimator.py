@@ -12,12 +12,19 @@ features (extracted once by the caller, as the pipeline does):
    than ``keyframe_min_tracked_fraction`` of the newest keyframe's landmarks are found
    again, or after ``max_keyframe_gap`` frames; a keyframe is inserted, the window
    refined, and the frame's points re-read from the refined window.
+
+With a :class:`~.backend.ProcessWindow` (:class:`~.settings.WindowBackendSettings` kind
+``process``) step 3 runs in a worker process instead: the frame is answered at once from
+the window as it was (its points from step 2) and the keyframe is *submitted*; the next
+frames are matched and queried against that window too, no new keyframe is chosen, and
+the refined window is taken over ``lag_frames`` frames later (:meth:`LandmarkEstimator.land`:
+the caller may take it before a frame's own processing, e.g. to predict from it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -25,8 +32,9 @@ from triangulation.multiview import TrackStatus, triangulate_tracks
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
 
+from .backend import ProcessWindow
 from .motion import MotionFactorSource
-from .settings import LandmarkSettings
+from .settings import LandmarkSettings, WindowBackendSettings
 from .tracks import FrameMatches
 from .types import KeyframeInput, LandmarkPoints, WindowUpdate
 from .window import LandmarkWindow
@@ -53,6 +61,11 @@ class FrameLandmarks:
             (``update.ok`` False, with the reason: the window is unchanged and the frame is
             not a keyframe).
         frame_matches: the frame's matches with the window's newest keyframes (newest first).
+        submitted: the frame was chosen as a keyframe and sent to the worker process
+            (``keyframe`` is False: its update comes later, :meth:`LandmarkEstimator.land`;
+            ``keyframe_reason`` says why it was chosen).
+        landed: a submitted keyframe's update taken over at the start of this frame (when
+            the caller did not take it itself), else None.
     """
 
     points: LandmarkPoints
@@ -62,6 +75,8 @@ class FrameLandmarks:
     pair_relative_sigma: float
     update: WindowUpdate | None = None
     frame_matches: tuple[FrameMatches, ...] = ()
+    submitted: bool = False
+    landed: WindowUpdate | None = None
 
 
 class LandmarkEstimator:
@@ -72,18 +87,95 @@ class LandmarkEstimator:
         matcher: a ``matchers`` matcher (``match(features_a, features_b) -> Matches``).
         motion_factors: the window's :class:`~.motion.MotionFactorSource` (e.g. the odometry's
             IMU factors), or None: pose priors from the frames' poses.
+        backend: a :class:`~.backend.ProcessWindow` to keep the window in (module
+            docstring), or None: in this process.
+        backend_settings: when its update is taken over (``lag_frames``, ``apply_when_ready``).
+        motion_factory: with ``backend``: picklable callable building the worker's motion
+            source (None: pose priors).
+        motion_samples: with ``backend``: ``(t0, t1) -> samples`` for the worker's motion
+            source between two keyframe times (seconds), or None.
     """
 
-    def __init__(self, settings: LandmarkSettings, matcher, motion_factors: MotionFactorSource | None = None):
+    def __init__(self, settings: LandmarkSettings, matcher, motion_factors: MotionFactorSource | None = None,
+                 backend: ProcessWindow | None = None,
+                 backend_settings: WindowBackendSettings = WindowBackendSettings(),
+                 motion_factory: Callable[[], MotionFactorSource] | None = None,
+                 motion_samples: Callable[[float, float], Any] | None = None):
         self.settings = settings
         self.matcher = matcher
-        self.window = LandmarkWindow(settings, motion_factors)
+        self._args = (motion_factors, backend, backend_settings, motion_factory, motion_samples)
+        self._remote = backend
+        self.backend_settings = backend_settings
+        self._motion_samples = motion_samples
+        self._provides_poses = motion_factors is not None and motion_factors.provides_poses
+        if backend is None:
+            self.window = LandmarkWindow(settings, motion_factors)
+        else:
+            #: in a worker process, the window as last taken over (a WindowSnapshot)
+            self.window = backend.reset(settings, motion_factory)
         self._features: dict[int, object] = {}
         self._last_tracked: int | None = None
+        self._frames = 0  # frames processed (the lag of a submitted keyframe counts them)
+        self._frame_id: int | None = None
+        # a submitted keyframe: (frame id, frames count at submission, features, camera, keypoints)
+        self._pending: tuple | None = None
 
     def reset(self) -> None:
         """Forget everything (a new window)."""
-        self.__init__(self.settings, self.matcher, self.window.motion_factors)
+        self.__init__(self.settings, self.matcher, *self._args)
+
+    @property
+    def pending(self) -> int | None:
+        """The frame id of a submitted keyframe whose update was not taken over yet, or None."""
+        return None if self._pending is None else self._pending[0]
+
+    def land(self, frame_id: int, wait: bool = False) -> WindowUpdate | None:
+        """Take a submitted keyframe's update over when it is due at frame ``frame_id``.
+
+        Due: ``lag_frames`` frames after the keyframe (waiting for the worker if needed), or
+        as soon as it is ready with ``apply_when_ready``, or now with ``wait``. The refined
+        window replaces the current one; its keyframe's features are kept for matching.
+        Call it (or let :meth:`process` call it) once per frame, before the frame's own
+        processing; idempotent for the same ``frame_id``.
+
+        Returns:
+            The :class:`~.types.WindowUpdate` taken over (``ok`` False: the window refused the
+            keyframe and is unchanged), or None (nothing due; always None without a worker).
+
+        Raises:
+            NumericalError: the update failed in the worker; the window is unusable.
+        """
+        if frame_id != self._frame_id:
+            self._frame_id = frame_id
+            self._frames += 1
+        if self._pending is None:
+            return None
+        kf_id, at, features, camera, kp = self._pending
+        b = self.backend_settings
+        if not (wait or self._frames - at >= b.lag_frames or (b.apply_when_ready and self._remote.ready())):
+            return None
+        self._pending = None
+        update, snapshot = self._remote.result()
+        if snapshot is not None:
+            self.window = snapshot
+            self._keep_features(kf_id, features)
+            self._last_tracked = len(snapshot.query(camera, None, kp, frame_id=kf_id))
+        return update
+
+    def _keep_features(self, frame_id: int, features) -> None:
+        """Keep a keyframe's features for matching while it is in the window."""
+        self._features[int(frame_id)] = features
+        ids = self.window.keyframe_ids
+        for k in list(self._features):
+            if k not in ids:
+                del self._features[k]
+
+    def _samples(self, frame_id: int, timestamp: float):
+        """The motion source's samples for keyframe ``frame_id`` (worker only), or None."""
+        ids = self.window.keyframe_ids
+        if self._remote is None or self._motion_samples is None or not ids:
+            return None
+        return self._motion_samples(self.window.keyframe(ids[-1]).timestamp, float(timestamp))
 
     def _pair_relative_sigma(self, newest: int, camera: Camera, keypoints: np.ndarray, points: LandmarkPoints,
                              m: FrameMatches) -> float:
@@ -129,18 +221,23 @@ class LandmarkEstimator:
         """
         s = self.settings
         T_w_c = check_transform("T_w_c", T_w_c)
+        landed = self.land(frame_id)
         kp = np.asarray(features.keypoints, np.float64)
         w = self.window
         if not w.keyframe_ids:
             update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
             if not update.ok:
-                return FrameLandmarks(LandmarkPoints.empty(update.reason, T_w_c), False, "", 0, float("inf"), update)
+                return FrameLandmarks(LandmarkPoints.empty(update.reason, T_w_c), False, "", 0, float("inf"), update,
+                                      landed=landed)
             return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
-                                  "first frame", 0, float("inf"), update)
+                                  "first frame", 0, float("inf"), update, landed=landed)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
         matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
         n_matches = sum(len(m) for m in matches)
         points = w.query(camera, T_w_c, kp, matches, prior_covariance=prior_covariance)
+        if self._pending is not None:  # the worker is refining the window: no new keyframe meanwhile
+            return FrameLandmarks(points, False, "", n_matches, float("inf"), frame_matches=tuple(matches),
+                                  landed=landed)
         newest = newest_first[0]
         rel = self._pair_relative_sigma(newest, camera, kp, points, matches[0])
         reason = ""
@@ -151,13 +248,19 @@ class LandmarkEstimator:
         elif self._last_tracked and points.associated < s.keyframe_min_tracked_fraction * self._last_tracked:
             reason = f"{points.associated} of the newest keyframe's {self._last_tracked} landmarks found"
         if not reason:
-            return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches))
+            return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches), landed=landed)
+        if self._remote is not None:
+            self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, tuple(matches)), None,
+                                self._samples(frame_id, timestamp))
+            self._pending = (int(frame_id), self._frames, features, camera, kp)
+            return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
+                                  landed=landed)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
         if not update.ok:
-            return FrameLandmarks(points, False, "", n_matches, rel, update, tuple(matches))
+            return FrameLandmarks(points, False, "", n_matches, rel, update, tuple(matches), landed=landed)
         points = w.query(camera, None, kp, frame_id=frame_id)
         self._last_tracked = len(points)
-        return FrameLandmarks(points, True, reason, n_matches, rel, update, tuple(matches))
+        return FrameLandmarks(points, True, reason, n_matches, rel, update, tuple(matches), landed=landed)
 
     def keyframe_features(self, frame_id: int):
         """The ``matchers.Features`` of a keyframe in the window (None for any other frame)."""
@@ -173,18 +276,25 @@ class LandmarkEstimator:
         False); ``initial``: the motion factor source's own initial state for it
         (:meth:`LandmarkWindow.add_keyframe`).
         """
-        w = self.window
-        if w.motion_factors.provides_poses:
+        kf = self._keyframe_input(frame_id, timestamp, camera, T_w_c, np.asarray(features.keypoints, np.float64),
+                                  matches)
+        if self._remote is None:
+            update = self.window.add_keyframe(kf, initial)
+        else:
+            if self._pending is not None:
+                self.land(self._frame_id, wait=True)
+            update, snapshot = self._remote.insert(kf, initial, self._samples(frame_id, timestamp))
+            if snapshot is not None:
+                self.window = snapshot
+        if not update.ok:
+            return update
+        self._keep_features(frame_id, features)
+        return update
+
+    def _keyframe_input(self, frame_id, timestamp, camera, T_w_c, keypoints, matches) -> KeyframeInput:
+        if self._provides_poses:
             # the motion factor source gives every keyframe's pose, and the frames' pose priors are
             # its predictions in the window's current frame (VIO): they are not sequence poses that
             # the window corrects the way it corrected their keyframe's
             T_w_c = None
-        update = w.add_keyframe(KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c,
-                                              np.asarray(features.keypoints, np.float64), matches), initial)
-        if not update.ok:
-            return update
-        self._features[int(frame_id)] = features
-        for k in list(self._features):  # features are kept only while their keyframe is in the window
-            if k not in w.keyframe_ids:
-                del self._features[k]
-        return update
+        return KeyframeInput(int(frame_id), float(timestamp), camera, T_w_c, keypoints, matches)

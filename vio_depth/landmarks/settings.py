@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from triangulation.multiview import MultiviewSettings
-from vio_core.errors import SettingsError
+from vio_core.errors import SettingsError, UnknownNameError
 from vio_core.settings import Presets
 
 
@@ -197,3 +197,37 @@ class LandmarkSettings:
     def for_poses(cls, kind: str, **overrides) -> "LandmarkSettings":
         """Defaults with the pose-prior preset ``kind`` (see :data:`POSE_PRIOR_PRESETS`)."""
         return cls(pose_prior=pose_prior_preset(kind), **overrides)
+
+
+#: where the window's keyframe updates run (:class:`WindowBackendSettings`)
+WINDOW_BACKENDS = ("inline", "process")
+
+
+@dataclass(frozen=True)
+class WindowBackendSettings:
+    """Where the landmark window's keyframe updates run (:mod:`.backend`).
+
+    Attributes:
+        kind: ``"inline"`` (the default): in the caller, at the keyframe -- the frame that
+            becomes a keyframe waits for the window's refinement, and runs are reproducible
+            bit for bit. ``"process"``: in a worker process beside the next frames (the
+            peers' tracking/mapping split: VINS-Mono, ORB-SLAM): the keyframe's frame is
+            answered at once from the window as it was, the following frames are tracked
+            against it too, and the refined window is taken over ``lag_frames`` frames later
+            (waiting for it then if it is not ready); no new keyframe is chosen meanwhile.
+        lag_frames: frames after a keyframe at which its update is taken over (>= 1).
+        apply_when_ready: take the update over as soon as it is ready, at the first frame
+            after it (still at the latest ``lag_frames`` after the keyframe): lower latency
+            and more keyframes on a fast machine, but the result depends on timing -- off for
+            reproducible runs and tests.
+    """
+
+    kind: str = "inline"
+    lag_frames: int = 4
+    apply_when_ready: bool = False
+
+    def __post_init__(self):
+        if self.kind not in WINDOW_BACKENDS:
+            raise UnknownNameError("window backend", self.kind, WINDOW_BACKENDS)
+        if not (isinstance(self.lag_frames, int) and self.lag_frames >= 1):
+            raise SettingsError("window backend lag_frames must be an integer >= 1")

@@ -35,7 +35,8 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
 
 Query (:meth:`LandmarkWindow.query`, :mod:`.query`): the metric points a frame sees.
 :meth:`LandmarkWindow.world_landmarks`: the window's landmarks in the world frame with
-their covariances.
+their covariances. :meth:`LandmarkWindow.snapshot`: a read-only copy of the state
+(:mod:`.snapshot`), e.g. for a window kept in a worker process (:mod:`.backend`).
 
 A numerical failure inside gtsam that leaves the window unusable (an indeterminant
 marginalisation, a refinement that is not finite) raises
@@ -44,8 +45,9 @@ marginalisation, a refinement that is not finite) raises
 
 from __future__ import annotations
 
+import copy
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -62,6 +64,7 @@ from .incremental import merge_points, reusable_tracks
 from .motion import MotionFactorSource, PosePriorFactors
 from .query import query_frame
 from .settings import LandmarkSettings
+from .snapshot import WindowSnapshot, world_landmarks_of
 from .tracks import Observations, TrackTable
 from .types import KeyframeInput, LandmarkPoints, WindowUpdate, WorldLandmarks
 
@@ -145,12 +148,16 @@ class LandmarkWindow:
     def world_landmarks(self) -> WorldLandmarks:
         """The window's VALID landmarks in the world frame (metres) with their marginal
         covariances (square metres), as of the last keyframe insertion; empty before any."""
-        lm = self._landmarks
-        if lm is None:
-            return WorldLandmarks(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, np.int64))
-        v = lm.valid
-        return WorldLandmarks(lm.track_ids[v].astype(np.int64), lm.points_w[v], lm.covariance_w[v],
-                              lm.n_inliers[v].astype(np.int64))
+        return world_landmarks_of(self._landmarks)
+
+    def snapshot(self) -> WindowSnapshot:
+        """A read-only copy of the window's state as it is now (:class:`~.snapshot.WindowSnapshot`:
+        the same read methods; it pickles, e.g. to leave a worker process)."""
+        ids = self.keyframe_ids
+        return WindowSnapshot(self.settings, {f: replace(k.info, matches=()) for f, k in self._kf.items()},
+                              np.stack([self.pose(f) for f in ids]) if ids else np.zeros((0, 4, 4)),
+                              copy.deepcopy(self._cov), self._graph.non_landmark_values(), self._landmarks,
+                              self._obs, copy.deepcopy(self.tracks))
 
     def factor_count(self) -> int:
         """Non-visual factors held (priors, motion and marginal factors): bounded by the window."""

@@ -61,10 +61,13 @@ class FrameBridges:
         the next keyframe comes (:meth:`close`)."""
         self._unbridged.append((int(frame_id), float(t), int(keyframe)))
 
-    def close(self, keyframe: int) -> None:
-        """``keyframe`` is new: the frames since the previous keyframe are bridged between the two."""
-        self._bridged += [(f, ft, a, int(keyframe)) for f, ft, a in self._unbridged]
-        self._unbridged = []
+    def close(self, keyframe: int, t: float = float("inf")) -> None:
+        """``keyframe`` (at ``t`` seconds) is new: the frames since the previous keyframe are
+        bridged between the two. Frames after ``t`` (tracked while the window was refined in a
+        worker process) now follow ``keyframe``; ``keyframe`` itself is no longer in between."""
+        k = int(keyframe)
+        self._bridged += [(f, ft, a, k) for f, ft, a in self._unbridged if ft < t and f != k]
+        self._unbridged = [(f, ft, k) for f, ft, a in self._unbridged if ft > t and f != k]
 
     def refresh(self, window: LandmarkWindow, times: Mapping[int, float], history: PoseHistory,
                 session: int) -> None:

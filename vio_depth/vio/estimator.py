@@ -29,11 +29,21 @@ States (:class:`VioStatus`), per frame:
 Poses kept (:attr:`VioEstimator.history`): keyframes follow the window's latest estimate
 until they are marginalised; the frames between them are posed when processed and again by
 the IMU after every window update (:mod:`vio_depth.vio.bridge`).
+
+Where the window's keyframe updates run (``settings.backend``,
+:class:`~vio_depth.landmarks.WindowBackendSettings`): ``inline`` (the default), a keyframe's
+frame waits for its update; ``process``, the update runs in a worker process
+(:mod:`vio_depth.landmarks.backend`) while the next frames are posed by IMU prediction and a
+motion-only refinement against the window as it was; it is taken over ``lag_frames`` frames
+later, before that frame's prediction (health check, bridges and history as for an inline
+keyframe). The keyframe's own frame keeps the pose it was given when processed (anchored to
+the previous keyframe) until the window's refined pose replaces it.
 """
 
 from __future__ import annotations
 
 import enum
+import functools
 import logging
 from dataclasses import dataclass, replace
 
@@ -45,7 +55,7 @@ from vio_core.errors import InputError, NumericalError
 from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
-from ..landmarks import LandmarkEstimator
+from ..landmarks import LandmarkEstimator, ProcessWindow, WindowUpdate
 from .bridge import FrameBridges
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
@@ -130,6 +140,8 @@ class VioEstimator:
         self.bridges = FrameBridges(self.factors)
         #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
         self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
+        #: the worker process of the landmark window (``settings.backend.kind`` "process"), or None
+        self.backend = ProcessWindow() if settings.backend.kind == "process" else None
 
     @property
     def imu(self) -> ImuData:
@@ -202,7 +214,12 @@ class VioEstimator:
         """Build the window from an initialisation; "" on success, else why it was refused."""
         s = self.settings
         self.session += 1
-        self.landmarks = LandmarkEstimator(s.window, self._gate, self.factors)
+        if self.backend is None:
+            self.landmarks = LandmarkEstimator(s.window, self._gate, self.factors)
+        else:
+            self.landmarks = LandmarkEstimator(s.window, self._gate, self.factors, self.backend, s.backend,
+                                               functools.partial(ImuFactors, self.imu, s),
+                                               self.factors.samples_between)
         T_i_c = invert_transform(self.factors.T_c_i)
         try:
             for k, st in zip(res.keyframes, res.states):
@@ -288,8 +305,29 @@ class VioEstimator:
         return VioFrame(frame_id, VioStatus.STILL, rest.reason, self.history.pose(frame_id), rest.covariance, False, 0,
                         st.velocity_w, st.accel_bias, st.gyro_bias)
 
+    def _landed(self, update: WindowUpdate) -> str:
+        """Take over a keyframe refined in the worker process; "" or why the odometry is lost."""
+        self.last_update = update
+        if not update.ok:  # the IMU could not link the keyframe
+            return f"the window update failed: {update.reason}"
+        why = self._health()
+        if why:
+            return why
+        kf = update.frame_id
+        self.bridges.close(kf, self._times[kf])  # frames before it bridged; those after it now follow it
+        self._sync_history()
+        return ""
+
     def _track(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
         s = self.settings
+        try:  # a keyframe refined in the worker process, when due: predict from it
+            landed = self.landmarks.land(frame_id)
+        except NumericalError as exc:
+            return self._lose(frame_id, f"the window update failed: {exc}")
+        if landed is not None:
+            why = self._landed(landed)
+            if why:
+                return self._lose(frame_id, why)
         w = self.landmarks.window
         newest = w.keyframe_ids[-1]
         state = self._newest_state()
@@ -312,7 +350,8 @@ class VioEstimator:
             return self._lose(frame_id, f"the window update failed: {exc}")
         if fl.update is not None and not fl.update.ok:  # the IMU could not link the keyframe
             return self._lose(frame_id, f"the window update failed: {fl.update.reason}")
-        self.last_update = fl.update
+        if fl.update is not None or landed is None:
+            self.last_update = fl.update
         if fl.keyframe:
             why = self._health()
             if why:

@@ -74,7 +74,7 @@ class PoseHistory:
         for k, f in enumerate(ids):
             self._kf_pose[f] = poses[k].copy()
             self._kf_session[f] = session
-            if f not in self._frames:
+            if f not in self._frames or self._frames[f].anchor != f:  # (a frame posed before it became a keyframe)
                 self._frames[f] = PoseRecord(session, f, np.eye(4), np.zeros((6, 6)))
         for k in range(1, len(ids)):
             self._links[ids[k]] = (ids[k - 1], invert_transform(poses[k - 1]) @ poses[k],

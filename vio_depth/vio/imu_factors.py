@@ -26,7 +26,7 @@ and the Levenberg-Marquardt steps with it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -129,6 +129,15 @@ class ImuFactors:
         if not np.allclose(imu.T_c_i, self.imu.T_c_i) or imu.gravity_w != self.imu.gravity_w:
             raise InputError("update_samples: the IMU calibration changed")
         self.imu = imu
+
+    def samples_between(self, t0: float, t1: float) -> ImuData:
+        """The samples from ``t0`` to ``t1`` seconds and two beyond each end: all that a copy of
+        these factors needs for a keyframe interval (e.g. the landmark window's in a worker
+        process, :mod:`vio_depth.landmarks.backend`, which gets them by :meth:`update_samples`)."""
+        t = self.imu.t
+        i0 = max(int(np.searchsorted(t, t0, "right")) - 2, 0)
+        i1 = min(int(np.searchsorted(t, t1, "left")) + 2, len(t))
+        return replace(self.imu, t=t[i0:i1], gyro=self.imu.gyro[i0:i1], accel=self.imu.accel[i0:i1])
 
     # ------------------------------------------------------------------ states
     def state_of(self, estimate, frame_id: int, t: float) -> KeyframeState:

@@ -13,7 +13,7 @@ from triangulation.multiview import MultiviewSettings
 from vio_core.errors import SettingsError
 from vio_core.settings import require_positive
 
-from ..landmarks.settings import LandmarkSettings, PosePriorSettings
+from ..landmarks.settings import LandmarkSettings, PosePriorSettings, WindowBackendSettings
 from ..poses import ImuPoseSettings, StaticInitSettings
 
 
@@ -224,6 +224,10 @@ class VioSettings:
             position of the frame before the rest, its orientation follows the gyroscope, and
             the window is not updated, so a resting camera neither drifts on the IMU alone
             nor loses tracking for lack of parallax.
+        backend: where the window's keyframe updates run
+            (:class:`~vio_depth.landmarks.WindowBackendSettings`): ``inline`` (default,
+            reproducible) or ``process`` (a worker process beside the tracking, for camera-rate
+            streaming; docs/vio.md).
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)
@@ -245,6 +249,7 @@ class VioSettings:
     predict_gyro_sigma: float = 0.002
     history_frames: int = 20000
     rest: RestSettings = field(default_factory=RestSettings)
+    backend: WindowBackendSettings = field(default_factory=WindowBackendSettings)
 
     def __post_init__(self):
         require_positive(self, "velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m",

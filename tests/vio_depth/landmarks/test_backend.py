@@ -1,0 +1,236 @@
+"""The landmark window's snapshot and its worker process (vio_depth/landmarks/snapshot.py,
+backend.py): a snapshot reads exactly as the window did, also after pickling; a window in a
+worker gives the same updates as one in this process; errors come back as they would inline;
+the estimator submits a keyframe, tracks against the window as it was, chooses no new
+keyframe meanwhile and takes the update over ``lag_frames`` frames later."""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import threading
+
+import numpy as np
+import pytest
+
+from vio_core.errors import InputError, NumericalError, SettingsError, UnknownNameError, WorkerError
+from vio_depth.landmarks import (
+    KeyframeInput,
+    LandmarkEstimator,
+    LandmarkSettings,
+    LandmarkWindow,
+    ProcessWindow,
+    WindowBackendSettings,
+    pose_prior_preset,
+)
+from vio_depth.landmarks.backend import _serve
+
+from .synthetic import IdMatcher, make_scene
+
+pytest.importorskip("gtsam")
+
+SETTINGS = LandmarkSettings(pose_prior=pose_prior_preset("mocap"), max_keyframe_gap=2)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(n_frames=12, n_points=250, step_m=0.05, prior_rot_deg=0.1, prior_trans_m=0.005, seed=11)
+
+
+@pytest.fixture(scope="module")
+def worker():
+    w = ProcessWindow()
+    yield w
+    w.close()
+
+
+def _keyframes(scene, frames):
+    """KeyframeInputs of ``frames`` with their matches against the previous ones (by point id)."""
+    out = []
+    for n, k in enumerate(frames):
+        from vio_depth.landmarks import FrameMatches
+
+        matches = tuple(FrameMatches.from_matches(j, IdMatcher().match(scene.features[k], scene.features[j]))
+                        for j in frames[:n][::-1][:2])
+        out.append(KeyframeInput(k, k / 30.0, scene.camera, scene.T_prior[k],
+                                 np.asarray(scene.features[k].keypoints, float), matches))
+    return out
+
+
+def _assert_same_window(a, b):
+    assert a.keyframe_ids == b.keyframe_ids
+    for f in a.keyframe_ids:
+        np.testing.assert_allclose(a.pose(f), b.pose(f), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.relative_covariances(), b.relative_covariances(), rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(a.joint_covariance(a.keyframe_ids), b.joint_covariance(b.keyframe_ids),
+                               rtol=1e-9, atol=1e-18)
+    la, lb = a.landmarks(), b.landmarks()
+    np.testing.assert_array_equal(la.track_ids, lb.track_ids)
+    np.testing.assert_allclose(la.points_w, lb.points_w, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(la.status, lb.status)
+    np.testing.assert_array_equal(a.observations().keypoint, b.observations().keypoint)
+    wa, wb = a.world_landmarks(), b.world_landmarks()
+    np.testing.assert_array_equal(wa.ids, wb.ids)
+
+
+def test_a_snapshot_reads_exactly_as_the_window_did_also_after_pickling(scene):
+    window = LandmarkWindow(SETTINGS)
+    for kf in _keyframes(scene, [0, 2, 4, 6]):
+        assert window.add_keyframe(kf).ok
+    snap = pickle.loads(pickle.dumps(window.snapshot()))
+    _assert_same_window(window, snap)
+    assert snap.keyframe(4).matches == () and snap.keyframe(4).T_w_c is not None  # matches are not carried
+    # a frame's query against either gives the same points and pose
+    from vio_depth.landmarks import FrameMatches
+
+    k = 7
+    matches = [FrameMatches.from_matches(j, IdMatcher().match(scene.features[k], scene.features[j])) for j in (6, 4)]
+    kp = np.asarray(scene.features[k].keypoints, float)
+    qa = window.query(scene.camera, scene.T_prior[k], kp, matches)
+    qb = snap.query(scene.camera, scene.T_prior[k], kp, matches)
+    assert len(qa) > 50
+    np.testing.assert_array_equal(qa.landmark_ids, qb.landmark_ids)
+    np.testing.assert_allclose(qa.depth, qb.depth, rtol=1e-12)
+    np.testing.assert_allclose(qa.T_w_c, qb.T_w_c, atol=1e-12)
+    # the snapshot is a copy: the window moves on, the snapshot does not
+    pose6 = snap.pose(6)
+    window.add_keyframe(_keyframes(scene, [0, 2, 4, 6, 8])[-1])
+    np.testing.assert_array_equal(snap.pose(6), pose6)
+    assert 8 not in snap.keyframe_ids and 8 in window.keyframe_ids
+
+
+def test_a_window_in_the_worker_gives_the_same_updates_as_one_here(scene, worker):
+    inline = LandmarkWindow(SETTINGS)
+    empty = worker.reset(SETTINGS)
+    assert empty.keyframe_ids == [] and empty.landmarks() is None
+    for kf in _keyframes(scene, [0, 2, 4, 6, 8]):
+        here = inline.add_keyframe(kf)
+        there, snap = worker.insert(kf)
+        assert there.ok and here.ok
+        assert (there.landmarks, there.observations, there.detached, there.marginalised) == (
+            here.landmarks, here.observations, here.detached, here.marginalised)
+        assert there.lm_error_after == pytest.approx(here.lm_error_after, rel=1e-9)
+    _assert_same_window(inline, snap)
+
+
+def test_submit_returns_at_once_and_result_waits(scene, worker):
+    worker.reset(SETTINGS)
+    kfs = _keyframes(scene, [0, 2, 4])
+    worker.insert(kfs[0])
+    worker.submit(kfs[1])
+    assert worker.pending
+    with pytest.raises(InputError, match="already being inserted"):
+        worker.submit(kfs[2])
+    update, snap = worker.result()
+    assert update.ok and snap.keyframe_ids == [0, 2] and not worker.pending and not worker.ready()
+    with pytest.raises(InputError, match="no keyframe is being inserted"):
+        worker.result()
+    # a pending result is discarded by a reset
+    worker.submit(kfs[2])
+    assert worker.reset(SETTINGS).keyframe_ids == [] and not worker.pending
+
+
+def test_errors_in_the_worker_are_raised_here_as_they_would_be_inline(scene, worker):
+    kfs = _keyframes(scene, [0]) + _keyframes(scene, [2])
+    worker.reset(SETTINGS)
+    worker.insert(kfs[1])
+    with pytest.raises(InputError, match="keyframe ids must increase") as info:
+        worker.insert(kfs[0])
+    assert any("window worker" in n for n in getattr(info.value, "__notes__", []))
+    worker.ping()  # the worker survived it
+    # a window the worker does not have
+    fresh = ProcessWindow()
+    try:
+        with pytest.raises(InputError, match="no window"):
+            fresh.insert(kfs[0])
+        fresh._proc.kill()
+        fresh._proc.join()
+        with pytest.raises(WorkerError, match="worker"):
+            fresh.insert(kfs[0])
+    finally:
+        fresh.close()
+
+
+class _Failing:
+    """A motion source whose factors raise a NumericalError (picklable: module level)."""
+
+    provides_poses = False
+    keep_marginals = False
+
+    def extra_keys(self, frame_id):
+        return []
+
+    def factors(self, previous, current, estimate, initial=None):
+        raise NumericalError("the motion source failed")
+
+    def after_marginalisation(self, oldest, estimate):
+        raise NumericalError("unused")
+
+
+def test_a_numerical_failure_in_the_worker_is_reported_as_one_and_the_window_dropped(scene):
+    """The worker's loop (run here in a thread: this test's motion source cannot be imported by a
+    spawned interpreter) answers a NumericalError with its message and forgets the window."""
+    here, there = multiprocessing.Pipe()
+    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
+    thread.start()
+    here.send(("new", SETTINGS, _Failing))
+    assert here.recv()[0] == "ok"
+    kf = _keyframes(scene, [0])[0]
+    here.send(("add", kf, None, None))
+    assert here.recv() == ("numerical", "the motion source failed")
+    here.send(("add", kf, None, None))
+    kind, exc, _ = here.recv()
+    assert kind == "raise" and isinstance(exc, InputError) and "no window" in str(exc)
+    here.send(("stop",))
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+def test_a_request_the_worker_cannot_read_is_an_error_here_and_the_worker_lives_on(worker):
+    with pytest.raises(WorkerError, match="ModuleNotFoundError|No module named"):
+        worker.reset(SETTINGS, _Failing)  # a class of this test module: not importable there
+    worker.ping()
+    assert worker.reset(SETTINGS).keyframe_ids == []
+
+
+def test_backend_settings_are_checked():
+    with pytest.raises(UnknownNameError, match="inline, process"):
+        WindowBackendSettings("thread")
+    with pytest.raises(SettingsError):
+        WindowBackendSettings("process", lag_frames=0)
+
+
+def test_the_estimator_takes_a_submitted_keyframe_over_lag_frames_later(worker):
+    """With a worker the keyframe's frame is answered from the window as it was, no keyframe is
+    chosen while one is being refined, the update lands exactly ``lag_frames`` frames later, and
+    the frames after it are matched and queried against the refined window."""
+    scene = make_scene(n_frames=16, n_points=250, step_m=0.12, prior_rot_deg=0.1, prior_trans_m=0.005, seed=12)
+    lag = 3
+    est = LandmarkEstimator(SETTINGS, IdMatcher(), backend=worker, backend_settings=WindowBackendSettings(
+        "process", lag_frames=lag))
+    inline = LandmarkEstimator(SETTINGS, IdMatcher())
+    submitted, landed = [], []
+    for k in range(len(scene.T_w_c)):
+        args = (k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        out = est.process(*args)
+        inline.process(*args)
+        if out.submitted:
+            assert not out.keyframe and out.keyframe_reason and out.update is None
+            assert est.pending == k
+            submitted.append(k)
+        if out.landed is not None:
+            assert out.landed.ok and est.pending in (None, k)  # (the frame may be the next keyframe)
+            landed.append((k, out.landed.frame_id))
+        if est.pending is not None and not out.submitted:
+            assert not out.keyframe and not out.submitted  # no new keyframe meanwhile
+        if landed:
+            assert len(out.points) > 50  # tracked against the window as it was
+    assert len(submitted) >= 2
+    assert all(k - f == lag for k, f in landed) and [f for _, f in landed] == submitted[:len(landed)]
+    assert est.window.keyframe_ids[0] == 0 and set(est.window.keyframe_ids) <= set([0] + submitted)
+    # max_keyframe_gap 2 inline: a keyframe every other frame; the worker's lag spaces them out
+    assert len(inline.window.keyframe_ids) > len(est.window.keyframe_ids)
+    # taking it over now, e.g. before the end of a run
+    if est.pending is not None:
+        update = est.land(len(scene.T_w_c), wait=True)
+        assert update.ok and est.window.keyframe_ids[-1] == update.frame_id
