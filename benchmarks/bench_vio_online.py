@@ -19,6 +19,7 @@ i.e. ``LandmarkSettings``, or else of ``VioSettings``).
 
     python benchmarks/bench_vio_online.py --matcher klt --set lm_min_error_decrease=1e-5
     python benchmarks/bench_vio_online.py --sequences room,street --set window_keyframes=12 --set ba_max_landmarks=400
+    python benchmarks/bench_vio_online.py --matcher klt --set "backend=('process', 6)"   # the window in a worker
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from bench_realtime import DEFAULT_CACHE  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
 from vio_depth.disparity import FileDisparity, SimulatedDisparitySource  # noqa: E402
 from vio_depth.evaluation import umeyama_alignment  # noqa: E402
+from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
 
 SEQUENCES = {"asl_room": ("indoor", None), "room": ("indoor", 10.0), "street": (None, 80.0)}
 
@@ -61,6 +63,9 @@ def with_changes(settings: PipelineSettings, changes: dict) -> PipelineSettings:
     unknown = [k for k in changes if k not in window_fields | vio_fields]
     if unknown:
         raise ValueError(f"unknown field(s) {', '.join(unknown)} (valid: LandmarkSettings or VioSettings fields)")
+    if "backend" in changes:  # e.g. --set "backend=('process', 6)": WindowBackendSettings' fields
+        b = changes["backend"]
+        changes = {**changes, "backend": WindowBackendSettings(*(b if isinstance(b, tuple) else (b,)))}
     window = replace(vio.window, **{k: v for k, v in changes.items() if k in window_fields})
     vio = replace(vio, window=window, **{k: v for k, v in changes.items() if k not in window_fields})
     return replace(settings, poses=vio)

@@ -178,7 +178,9 @@ class ProcessWindow:
         try:
             msg = self._conn.recv()
         except (EOFError, OSError) as exc:
-            raise WorkerError(f"landmarks: the window worker died ({self._exit()})") from exc
+            raise WorkerError(f"landmarks: the window worker died ({self._exit()}); it is a fresh interpreter "
+                              "(multiprocessing 'spawn') that imports the main script again: a script must build "
+                              "its pipeline under `if __name__ == '__main__':`") from exc
         if msg[0] == "ok":
             return msg[1], msg[2]
         if msg[0] == "numerical":

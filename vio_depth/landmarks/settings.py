@@ -215,7 +215,11 @@ class WindowBackendSettings:
             answered at once from the window as it was, the following frames are tracked
             against it too, and the refined window is taken over ``lag_frames`` frames later
             (waiting for it then if it is not ready); no new keyframe is chosen meanwhile.
-        lag_frames: frames after a keyframe at which its update is taken over (>= 1).
+        lag_frames: frames after a keyframe at which its update is taken over (>= 1). The
+            default 6 lets a ~170 ms update finish beside 20 Hz KLT tracking on two cores
+            (docs/benchmarks.md "The landmark window in a worker process"); SIFT's frames,
+            matched against keyframe descriptors, lose accuracy with a long lag (2: ASL sample
+            ATE 7.1 vs 6.7 mm; 6: 13.8 mm).
         apply_when_ready: take the update over as soon as it is ready, at the first frame
             after it (still at the latest ``lag_frames`` after the keyframe): lower latency
             and more keyframes on a fast machine, but the result depends on timing -- off for
@@ -223,7 +227,7 @@ class WindowBackendSettings:
     """
 
     kind: str = "inline"
-    lag_frames: int = 4
+    lag_frames: int = 6
     apply_when_ready: bool = False
 
     def __post_init__(self):
