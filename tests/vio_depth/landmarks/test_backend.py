@@ -15,6 +15,7 @@ import pytest
 
 from vio_core.errors import InputError, NumericalError, SettingsError, UnknownNameError, WorkerError
 from vio_depth.landmarks import (
+    FrameMatches,
     KeyframeInput,
     LandmarkEstimator,
     LandmarkSettings,
@@ -48,8 +49,6 @@ def _keyframes(scene, frames):
     """KeyframeInputs of ``frames`` with their matches against the previous ones (by point id)."""
     out = []
     for n, k in enumerate(frames):
-        from vio_depth.landmarks import FrameMatches
-
         matches = tuple(FrameMatches.from_matches(j, IdMatcher().match(scene.features[k], scene.features[j]))
                         for j in frames[:n][::-1][:2])
         out.append(KeyframeInput(k, k / 30.0, scene.camera, scene.T_prior[k],
@@ -81,8 +80,6 @@ def test_a_snapshot_reads_exactly_as_the_window_did_also_after_pickling(scene):
     _assert_same_window(window, snap)
     assert snap.keyframe(4).matches == () and snap.keyframe(4).T_w_c is not None  # matches are not carried
     # a frame's query against either gives the same points and pose
-    from vio_depth.landmarks import FrameMatches
-
     k = 7
     matches = [FrameMatches.from_matches(j, IdMatcher().match(scene.features[k], scene.features[j])) for j in (6, 4)]
     kp = np.asarray(scene.features[k].keypoints, float)
