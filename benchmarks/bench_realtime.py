@@ -248,7 +248,8 @@ class StreamRunner:
         self.timings.append(dict(result.timings))
         self.with_depth += result.depth is not None
         self.statuses[result.status.value] = self.statuses.get(result.status.value, 0) + 1
-        self.posed.append(result.T_w_c is not None)
+        pose = result.frame_pose  # None: the poses are given (gt, imu), every frame has one
+        self.posed.append(pose is None or (pose.ok and pose.T_w_c is not None))
 
     def __call__(self, i: int) -> float:
         image, disparity, kwargs = self.inputs(i)
