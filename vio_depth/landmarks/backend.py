@@ -23,9 +23,10 @@ in the caller; anything else, or a worker that died, raises
 from __future__ import annotations
 
 import multiprocessing as mp
+from collections import deque
 import traceback
 import weakref
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from vio_core.errors import InputError, NumericalError, VioDepthError, WorkerError
 
@@ -54,15 +55,19 @@ def _serve(conn) -> None:
             elif msg[0] == "new":
                 _, settings, factory = msg
                 window = LandmarkWindow(settings, None if factory is None else factory())
-                reply = ("ok", None, window.snapshot())
-            else:  # "add"
-                _, kf, initial, samples = msg
+                reply = ("ok", None, None)
+            else:  # "add": keyframes in order, up to the first one the window refuses
                 if window is None:
                     raise InputError("landmarks: the window worker has no window (reset first)")
-                if samples is not None:
-                    window.motion_factors.update_samples(samples)
-                update = window.add_keyframe(kf, initial)
-                reply = ("ok", update, window.snapshot() if update.ok else None)
+                updates = []
+                for kf, initial, samples in msg[1]:
+                    if samples is not None:
+                        window.motion_factors.update_samples(samples)
+                    updates.append(window.add_keyframe(kf, initial))
+                    if not updates[-1].ok:
+                        break
+                changed = len(updates) > 1 or updates[0].ok
+                reply = ("ok", tuple(updates), window.snapshot() if changed else None)
         except NumericalError as exc:
             window = None  # unusable: the caller resets
             reply = ("numerical", str(exc))
@@ -98,6 +103,9 @@ class ProcessWindow:
         self._proc.start()
         child.close()
         self._pending = False
+        # replies owed by the worker before the pending result's: "new" (a reset's: its error is
+        # raised, its snapshot dropped) or "drop" (a result discarded by a reset)
+        self._owed: deque[str] = deque()
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
     @property
@@ -106,52 +114,74 @@ class ProcessWindow:
         return self._pending
 
     def ready(self) -> bool:
-        """The pending keyframe's result has arrived (never blocks)."""
-        return self._pending and self._conn.poll()
+        """The pending keyframe's result has arrived (never blocks; an owed reset's failure
+        that has arrived is raised, as by :meth:`ping`)."""
+        while self._owed and self._conn.poll():
+            self._owed_reply()
+        return self._pending and not self._owed and self._conn.poll()
 
     def ping(self) -> None:
-        """Wait until the worker answers (it has started and imported what it needs)."""
+        """Wait until the worker answers (it has started and imported what it needs).
+
+        Raises:
+            WorkerError, VioDepthError: a reset since the last wait failed in the worker.
+        """
         if self._pending:
             raise InputError("landmarks: a keyframe is being inserted (take its result first)")
         self._send(("ping",))
         self._reply()
 
-    def reset(self, settings: LandmarkSettings, motion_factory: Callable[[], Any] | None = None) -> WindowSnapshot:
-        """Start a new, empty window in the worker (a pending result is discarded).
+    def reset(self, settings: LandmarkSettings, motion_factory: Callable[[], Any] | None = None) -> None:
+        """Start a new, empty window in the worker; returns at once, without waiting for the
+        worker (a worker still starting keeps the caller waiting only at the first result). A
+        pending result is discarded. The new window's snapshot is
+        :meth:`WindowSnapshot.empty <.snapshot.WindowSnapshot.empty>`; a failure to build it
+        (e.g. a ``motion_factory`` the worker cannot import) is raised by the next call that
+        waits for the worker (:meth:`result`, :meth:`insert`, :meth:`ping`).
 
         Args:
             settings: the window's :class:`LandmarkSettings` (resolved).
             motion_factory: picklable callable returning the window's
                 :class:`~.motion.MotionFactorSource`, or None for pose priors.
-
-        Returns:
-            The empty window's snapshot.
         """
         if self._pending:
-            try:
-                self.result()
-            except VioDepthError:
-                pass  # the old window is dropped anyway
+            self._pending = False
+            self._owed.append("drop")
         self._send(("new", settings, motion_factory))
-        return self._reply()[1]
+        self._owed.append("new")
 
     def submit(self, kf: KeyframeInput, initial: Any | None = None, samples: Any | None = None) -> None:
         """Send a keyframe (:meth:`LandmarkWindow.add_keyframe`'s arguments; ``samples``: the
         motion source's new samples, or None); returns at once."""
+        self.submit_batch([(kf, initial, samples)])
+
+    def submit_batch(self, keyframes: Sequence[tuple[KeyframeInput, Any | None, Any | None]]) -> None:
+        """Send keyframes ``(kf, initial, samples)`` (as :meth:`submit`'s) to be inserted in
+        order, e.g. the keyframes of an initialisation; the worker stops at the first one the
+        window refuses. Returns at once."""
         if self._pending:
             raise InputError("landmarks: a keyframe is already being inserted (take its result first)")
-        self._send(("add", kf, initial, samples))
+        if not keyframes:
+            raise InputError("landmarks: no keyframe to insert")
+        self._send(("add", list(keyframes)))
         self._pending = True
 
     def result(self) -> tuple[WindowUpdate, WindowSnapshot | None]:
-        """The pending keyframe's :class:`~.types.WindowUpdate` and the window's snapshot
-        after it (None when the window refused the keyframe: unchanged); waits for them.
+        """The pending keyframe's :class:`~.types.WindowUpdate` (of a batch: its last, which is
+        the refused one if any) and the window's snapshot after it (None when the window is
+        unchanged: it refused the only keyframe); waits for them.
 
         Raises:
             NumericalError: the update failed numerically (the window is unusable: reset).
             VioDepthError: what the window raised.
             WorkerError: the worker failed unexpectedly or died.
         """
+        updates, snapshot = self.batch_result()
+        return updates[-1], snapshot
+
+    def batch_result(self) -> tuple[tuple[WindowUpdate, ...], WindowSnapshot | None]:
+        """:meth:`result` with every inserted keyframe's update, in order (a batch stops at
+        the first refused keyframe: that one is the last)."""
         if not self._pending:
             raise InputError("landmarks: no keyframe is being inserted")
         self._pending = False
@@ -175,6 +205,32 @@ class ProcessWindow:
             raise WorkerError(f"landmarks: the window worker is gone ({self._exit()})") from exc
 
     def _reply(self):
+        """The reply to the last request, after the replies owed before it; an owed reset's
+        failure is raised once that reply is read too (the pipe stays in step)."""
+        error = None
+        while self._owed:
+            try:
+                self._owed_reply()
+            except VioDepthError as exc:
+                error = error or exc
+        reply = self._receive()
+        if error is not None:
+            raise error
+        return reply
+
+    def _owed_reply(self) -> None:
+        kind = self._owed.popleft()
+        if kind == "drop":
+            try:
+                self._receive()
+            except WorkerError:
+                raise
+            except VioDepthError:
+                pass  # the old window's failure: it is dropped anyway
+            return
+        self._receive()
+
+    def _receive(self):
         try:
             msg = self._conn.recv()
         except (EOFError, OSError) as exc:

@@ -24,17 +24,19 @@ the caller may take it before a frame's own processing, e.g. to predict from it)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from triangulation.multiview import TrackStatus, triangulate_tracks
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
+from vio_core.errors import InputError
 
 from .backend import ProcessWindow
 from .motion import MotionFactorSource
 from .settings import LandmarkSettings, WindowBackendSettings
+from .snapshot import WindowSnapshot
 from .tracks import FrameMatches
 from .types import KeyframeInput, LandmarkPoints, WindowUpdate
 from .window import LandmarkWindow
@@ -112,13 +114,18 @@ class LandmarkEstimator:
             self.window = LandmarkWindow(settings, motion_factors)
         else:
             #: in a worker process, the window as last taken over (a WindowSnapshot)
-            self.window = backend.reset(settings, motion_factory)
+            backend.reset(settings, motion_factory)
+            self.window = WindowSnapshot.empty(settings)
         self._features: dict[int, object] = {}
         self._last_tracked: int | None = None
         self._frames = 0  # frames processed (the lag of a submitted keyframe counts them)
         self._frame_id: int | None = None
-        # a submitted keyframe: (frame id, frames count at submission, features, camera, keypoints)
+        # submitted keyframes: (frames count at submission, ((frame id, features, camera, keypoints), ...),
+        # whether they start the window: submit_keyframes)
         self._pending: tuple | None = None
+        #: every update of the keyframes taken over by the last :meth:`land` (more than one after
+        #: :meth:`submit_keyframes`)
+        self.landed_updates: tuple[WindowUpdate, ...] = ()
 
     def reset(self) -> None:
         """Forget everything (a new window)."""
@@ -126,14 +133,16 @@ class LandmarkEstimator:
 
     @property
     def pending(self) -> int | None:
-        """The frame id of a submitted keyframe whose update was not taken over yet, or None."""
-        return None if self._pending is None else self._pending[0]
+        """The frame id of a submitted keyframe whose update was not taken over yet (the
+        newest of a batch), or None."""
+        return None if self._pending is None else self._pending[1][-1][0]
 
     def land(self, frame_id: int, wait: bool = False) -> WindowUpdate | None:
         """Take a submitted keyframe's update over when it is due at frame ``frame_id``.
 
         Due: ``lag_frames`` frames after the keyframe (waiting for the worker if needed), or
-        as soon as it is ready with ``apply_when_ready``, or now with ``wait``. The refined
+        as soon as it is ready with ``apply_when_ready``, or now with ``wait``; the keyframes
+        of :meth:`submit_keyframes` the same way after ``start_lag_frames``. The refined
         window replaces the current one; its keyframe's features are kept for matching.
         Call it (or let :meth:`process` call it) once per frame, before the frame's own
         processing; idempotent for the same ``frame_id``.
@@ -150,17 +159,23 @@ class LandmarkEstimator:
             self._frames += 1
         if self._pending is None:
             return None
-        kf_id, at, features, camera, kp = self._pending
+        at, keyframes, start = self._pending
         b = self.backend_settings
-        if not (wait or self._frames - at >= b.lag_frames or (b.apply_when_ready and self._remote.ready())):
+        lag = b.start_lag_frames if start else b.lag_frames
+        due = self._frames - at >= lag or (b.apply_when_ready and self._remote.ready())
+        if not (wait or due):
             return None
         self._pending = None
-        update, snapshot = self._remote.result()
+        updates, snapshot = self._remote.batch_result()
+        self.landed_updates = updates
         if snapshot is not None:
             self.window = snapshot
-            self._keep_features(kf_id, features)
+            inserted = keyframes[: len(updates) - (not updates[-1].ok)]
+            for kf_id, features, _, _ in inserted:
+                self._keep_features(kf_id, features)
+            kf_id, _, camera, kp = inserted[-1]
             self._last_tracked = len(snapshot.query(camera, None, kp, frame_id=kf_id))
-        return update
+        return updates[-1]
 
     def _keep_features(self, frame_id: int, features) -> None:
         """Keep a keyframe's features for matching while it is in the window."""
@@ -252,7 +267,7 @@ class LandmarkEstimator:
         if self._remote is not None:
             self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, tuple(matches)), None,
                                 self._samples(frame_id, timestamp))
-            self._pending = (int(frame_id), self._frames, features, camera, kp)
+            self._pending = (self._frames, ((int(frame_id), features, camera, kp),), False)
             return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
                                   landed=landed)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
@@ -290,6 +305,33 @@ class LandmarkEstimator:
             return update
         self._keep_features(frame_id, features)
         return update
+
+    def submit_keyframes(self, keyframes: Sequence[tuple]) -> None:
+        """Send the first keyframes of an empty window to the worker in one batch (e.g. a VIO
+        initialisation's), bypassing the policy; returns at once. :meth:`land` takes them over
+        ``start_lag_frames`` frames later (:attr:`landed_updates`: one update each, up to the
+        first refused one).
+
+        Args:
+            keyframes: ``(frame_id, timestamp, camera, T_w_c, features, matches, initial)``
+                each, in order (:meth:`insert_keyframe`'s arguments); ``matches`` with
+                keyframes of the window once the earlier ones are in.
+        """
+        if self._remote is None:
+            raise InputError("landmarks: submit_keyframes needs the window in a worker process")
+        if self.window.keyframe_ids or self._pending is not None:
+            raise InputError("landmarks: submit_keyframes starts an empty window")
+        batch, kept, before = [], [], None
+        for frame_id, timestamp, camera, T_w_c, features, matches, initial in keyframes:
+            kp = np.asarray(features.keypoints, np.float64)
+            samples = None if before is None or self._motion_samples is None else \
+                self._motion_samples(before, float(timestamp))
+            batch.append((self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, tuple(matches)), initial,
+                          samples))
+            kept.append((int(frame_id), features, camera, kp))
+            before = float(timestamp)
+        self._remote.submit_batch(batch)
+        self._pending = (self._frames, tuple(kept), True)
 
     def _keyframe_input(self, frame_id, timestamp, camera, T_w_c, keypoints, matches) -> KeyframeInput:
         if self._provides_poses:

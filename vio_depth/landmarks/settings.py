@@ -220,18 +220,27 @@ class WindowBackendSettings:
             (docs/benchmarks.md "The landmark window in a worker process"); SIFT's frames,
             matched against keyframe descriptors, lose accuracy with a long lag (2: ASL sample
             ATE 7.1 vs 6.7 mm; 6: 13.8 mm).
-        apply_when_ready: take the update over as soon as it is ready, at the first frame
-            after it (still at the latest ``lag_frames`` after the keyframe): lower latency
-            and more keyframes on a fast machine, but the result depends on timing -- off for
-            reproducible runs and tests.
+        start_lag_frames: frames after an initialisation at which the window built from its
+            keyframes in the worker is taken over (waiting for it then if it is not ready);
+            the frames meanwhile are not posed (``initialising``). 0: the initialisation's
+            frame waits for it, as inline. The default 20 (one second at 20 Hz) covers the
+            worker's start (its interpreter imports the pipeline: 1-3 s on two cores, while
+            the first frames are read) and a six-keyframe start (~1.2 s; docs/benchmarks.md).
+        apply_when_ready: take an update (a start's too) over as soon as it is ready, at the
+            first frame after it (still at the latest ``lag_frames`` / ``start_lag_frames``
+            after it): lower latency and more keyframes on a fast machine, but the result
+            depends on timing -- off for reproducible runs and tests.
     """
 
     kind: str = "inline"
     lag_frames: int = 6
     apply_when_ready: bool = False
+    start_lag_frames: int = 20
 
     def __post_init__(self):
         if self.kind not in WINDOW_BACKENDS:
             raise UnknownNameError("window backend", self.kind, WINDOW_BACKENDS)
         if not (isinstance(self.lag_frames, int) and self.lag_frames >= 1):
             raise SettingsError("window backend lag_frames must be an integer >= 1")
+        if not (isinstance(self.start_lag_frames, int) and self.start_lag_frames >= 0):
+            raise SettingsError("window backend start_lag_frames must be an integer >= 0")

@@ -25,7 +25,9 @@ from ..poses import (
     ImuPoseSource,
     PoseSource,
     TrackingPoseSource,
+    import_gtsam,
 )
+from ..landmarks import ProcessWindow
 from ..vio import VioPoseSource, VioSettings
 from .feed import LazyImuPoses, StreamInputs
 from .landmark_points import LandmarkPointsStage
@@ -111,6 +113,7 @@ def build_pose_stage(settings: PoseSettings | str, sequence=None, matcher: Match
             if stream is None:
                 return PoseStage(ImuPoseSource.for_sequence(sequence, settings))
             _require_calibration(stream, "imu")
+            import_gtsam()  # now, not at the first frame
             return PoseStage(LazyImuPoses("imu", stream, lambda imu: ImuPoseSource(imu, stream, settings)))
         case VioSettings():
             matcher = create_matcher("sift") if matcher is None else matcher
@@ -118,7 +121,12 @@ def build_pose_stage(settings: PoseSettings | str, sequence=None, matcher: Match
                 source = VioPoseSource.for_sequence(sequence, settings, matcher)
             else:
                 _require_calibration(stream, "vio")
-                source = LazyImuPoses("vio", stream, lambda imu: VioPoseSource(imu, matcher, settings), matcher)
+                import_gtsam()  # now, not at the first frame
+                # the source waits for the first IMU samples; the window's worker, if any, starts
+                # now: its interpreter takes seconds to start, while the first frames are read
+                worker = ProcessWindow() if settings.backend.kind == "process" else None
+                source = LazyImuPoses("vio", stream, lambda imu: VioPoseSource(imu, matcher, settings, worker),
+                                      matcher)
             return PoseStage(source, source)
         case _:
             raise SettingsError(f"no pose source for settings of type {type(settings).__name__}; valid: "

@@ -40,6 +40,7 @@ from .preintegration import (
     adjoint,
     fit_window,
     gravity_aligned_rotation,
+    import_gtsam,
     integrate_interval,
     preintegrate,
     preintegration_params,
@@ -83,6 +84,7 @@ __all__ = [
     "integrate_interval",
     "preintegrate",
     "preintegration_params",
+    "import_gtsam",
     "solve_pose_calibration",
     "static_initialisation",
 ]

@@ -59,10 +59,16 @@ def _interval_samples(imu: ImuData, t0: float, t1: float, max_gap: float):
     return (knots, gyro, accel), ""
 
 
-def _gtsam():
-    import gtsam  # a core dependency (pyproject.toml), imported only when --poses imu is used
+def import_gtsam():
+    """The ``gtsam`` module, imported now (a core dependency, pyproject.toml, imported only
+    where ``--poses imu`` / ``vio`` are used: it takes 0.1-0.5 s). A stream's IMU pose source
+    is built at its first frame; importing gtsam when the stream is built spares that frame."""
+    import gtsam
 
     return gtsam
+
+
+_gtsam = import_gtsam
 
 
 def preintegration_params(imu: ImuData, settings: ImuPoseSettings = ImuPoseSettings()):

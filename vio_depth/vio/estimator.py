@@ -110,6 +110,12 @@ class VioFrame:
         return self.T_w_c is not None
 
 
+def _log_start_keyframe(upd: WindowUpdate) -> None:
+    log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, "
+              "graph error %.1f -> %.1f", upd.frame_id, upd.landmarks, upd.observations,
+              upd.median_residual_px, upd.lm_error_before, upd.lm_error_after)
+
+
 class VioEstimator:
     """Visual-inertial odometry over the frames of one camera (module docstring).
 
@@ -117,9 +123,13 @@ class VioEstimator:
         imu: the IMU samples (with ``T_c_i``, noise densities, gravity).
         matcher: matches the frames' features (the same matcher extracted them).
         settings: :class:`~vio_depth.vio.VioSettings`.
+        backend: with ``settings.backend.kind`` "process": the window's worker, started
+            earlier by the caller (its interpreter takes 1-3 s to start); default: one started
+            here. Ignored for "inline".
     """
 
-    def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings()):
+    def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings(),
+                 backend: ProcessWindow | None = None):
         if imu is None:
             raise InputError("vio: no IMU samples")
         self.settings = settings
@@ -129,6 +139,8 @@ class VioEstimator:
         self.initializer = Initializer(imu, self._gate, settings, self.factors.params)
         self.history = PoseHistory(settings.history_frames)
         self.landmarks: LandmarkEstimator | None = None
+        #: an initialisation whose window the worker is building (``settings.backend.kind`` "process")
+        self._starting: InitResult | None = None
         self.session = 0
         self._times: dict[int, float] = {}
         self._last_visual_t = -np.inf
@@ -141,7 +153,9 @@ class VioEstimator:
         #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
         self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
         #: the worker process of the landmark window (``settings.backend.kind`` "process"), or None
-        self.backend = ProcessWindow() if settings.backend.kind == "process" else None
+        self.backend = None
+        if settings.backend.kind == "process":
+            self.backend = ProcessWindow() if backend is None else backend
 
     @property
     def imu(self) -> ImuData:
@@ -154,7 +168,8 @@ class VioEstimator:
 
     @property
     def tracking(self) -> bool:
-        return self.landmarks is not None
+        """The odometry has a window and tracks (not initialising, nor waiting for its worker's start)."""
+        return self.landmarks is not None and self._starting is None
 
     def frame_landmarks(self, frame_id: int) -> OdometryLandmarks | None:
         """The metric landmarks the odometry saw in frame ``frame_id``, or None.
@@ -204,14 +219,16 @@ class VioEstimator:
     def _lose(self, frame_id: int, reason: str) -> VioFrame:
         log.info("vio: lost at frame %d: %s", frame_id, reason)
         self.landmarks = None
+        self._starting = None
         self.initializer.reset()
         self.rest.reset()
         self.session += 1
         return VioFrame(frame_id, VioStatus.LOST, f"odometry lost: {reason}; re-initialising")
 
     # ------------------------------------------------------------------ start
-    def _start(self, res: InitResult) -> str:
-        """Build the window from an initialisation; "" on success, else why it was refused."""
+    def _start_keyframes(self, res: InitResult) -> list[tuple]:
+        """The initialisation's keyframes as :meth:`LandmarkEstimator.insert_keyframe`'s
+        arguments, in order (a new window and session are started)."""
         s = self.settings
         self.session += 1
         if self.backend is None:
@@ -221,25 +238,63 @@ class VioEstimator:
                                                functools.partial(ImuFactors, self.imu, s),
                                                self.factors.samples_between)
         T_i_c = invert_transform(self.factors.T_c_i)
+        out, before = [], set()
+        for k, st in zip(res.keyframes, res.states):
+            self._times[k.frame_id] = k.t
+            matches = tuple(m for m in k.matches if m.keyframe in before)
+            # the initialisation's state: the first keyframe's prior, the others' initial values
+            out.append((k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches, st))
+            before.add(k.frame_id)
+        return out
+
+    def _start(self, res: InitResult) -> str:
+        """Build the window from an initialisation here; "" on success, else why it was refused."""
         try:
-            for k, st in zip(res.keyframes, res.states):
-                self._times[k.frame_id] = k.t
-                matches = tuple(m for m in k.matches if m.keyframe in self.landmarks.window.keyframe_ids)
-                # the initialisation's state: the first keyframe's prior, the others' initial values
-                upd = self.landmarks.insert_keyframe(k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches,
-                                                     initial=st)
+            for args in self._start_keyframes(res):
+                upd = self.landmarks.insert_keyframe(*args[:6], initial=args[6])
                 if not upd.ok:
                     self.landmarks = None
                     return f"the window could not start: {upd.reason}"
-                log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, "
-                          "graph error %.1f -> %.1f", k.frame_id, upd.landmarks, upd.observations,
-                          upd.median_residual_px, upd.lm_error_before, upd.lm_error_after)
+                _log_start_keyframe(upd)
         except NumericalError as exc:
             self.landmarks = None
             return f"the window could not start: {exc}"
+        return self._started(res)
+
+    def _submit_start(self, res: InitResult) -> None:
+        """Send the initialisation's keyframes to the window worker; :meth:`_land_start` takes
+        the window over ``start_lag_frames`` frames later, and the frames meanwhile wait
+        (initialising)."""
+        keyframes = self._start_keyframes(res)  # builds self.landmarks
+        self.landmarks.submit_keyframes(keyframes)
+        self._starting = res
+
+    def _land_start(self, frame_id: int) -> tuple[bool, str]:
+        """``(landed, why)``: whether the window worker's start is taken over at this frame,
+        and why it was refused ("" when the odometry started)."""
+        try:
+            update = self.landmarks.land(frame_id)
+        except NumericalError as exc:
+            update, why = None, f"the window could not start: {exc}"
+        else:
+            if update is None:
+                return False, ""
+            why = "" if update.ok else f"the window could not start: {update.reason}"
+        res, self._starting = self._starting, None
+        if not why:
+            why = self._started(res)
+        if why:
+            self.landmarks = None
+        return True, why
+
+    def _started(self, res: InitResult) -> str:
+        """Check the window built from an initialisation and start tracking from it; "" on
+        success, else why it was refused (the caller drops the window)."""
+        s = self.settings
         why = self._health()
         if not why and res.kind == InitKind.DYNAMIC and len(res.keyframes) > 1:
             w = self.landmarks.window
+            T_i_c = invert_transform(self.factors.T_c_i)
             p_win = np.stack([w.pose(k.frame_id)[:3, 3] for k in res.keyframes])
             p_al = np.stack([(st.T_w_i @ T_i_c)[:3, 3] for st in res.states])
             ratio = np.sum(np.linalg.norm(np.diff(p_win, axis=0), axis=1)) / max(
@@ -269,6 +324,7 @@ class VioEstimator:
         return out
 
     def _process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
+        s = self.settings
         if self._last_id is not None and frame_id <= self._last_id:
             raise InputError(f"vio: frames must come in order, got {frame_id} after {self._last_id}")
         self._last_id = int(frame_id)
@@ -277,25 +333,46 @@ class VioEstimator:
         if len(self._times) > 4 * self.settings.history_frames:
             for k in sorted(self._times)[: len(self._times) // 2]:
                 self._times.pop(k)
+        if self._starting is not None:  # the initialisation's window is being built in the worker
+            res = self._starting
+            landed, why = self._land_start(frame_id)
+            if not landed:
+                return VioFrame(frame_id, VioStatus.INITIALISING, f"{res.kind.value} initialisation at frame "
+                                f"{res.keyframes[-1].frame_id}: the window is being built in the worker process")
+            if why:
+                self.initializer.refuse(why, drop_oldest=False)
+                return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
+            self._log_start(res, frame_id)
+            # this frame is tracked from the initialisation's newest keyframe
+            return replace(self._track(int(frame_id), float(t), camera, features), initialised=res.kind)
         if not self.tracking:
             res = self.initializer.process(frame_id, t, camera, features)
             if not res.ok:
                 return VioFrame(frame_id, VioStatus.INITIALISING, res.reason)
+            if self.backend is not None and s.backend.start_lag_frames > 0:
+                self._submit_start(res)
+                return VioFrame(frame_id, VioStatus.INITIALISING, f"{res.kind.value} initialisation: the window is "
+                                "being built in the worker process")
             why = self._start(res)
             if why:
                 self.initializer.refuse(why, drop_oldest=False)
                 return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
-            al = res.alignment
-            log.info("vio: %s initialisation at frame %d (%d keyframes%s)", res.kind.value, frame_id,
-                     len(res.keyframes),
-                     "" if al is None else f"; scale {al.scale:.4g} +- {al.scale_sigma:.1%}, gravity error "
-                                           f"{al.gravity_error:+.2f} m/s^2, excitation {al.excitation:.2f} m/s^2")
-            self.last_init = res
+            self._log_start(res, frame_id)
             st = self._newest_state()
             return self._trusted(VioFrame(frame_id, VioStatus.TRACKING, f"{res.kind.value} initialisation",
                                           self.history.pose(frame_id), np.zeros((6, 6)), True, 0, st.velocity_w,
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
+
+    def _log_start(self, res: InitResult, frame_id: int) -> None:
+        al = res.alignment
+        log.info("vio: %s initialisation at frame %d (%d keyframes%s)", res.kind.value, frame_id,
+                 len(res.keyframes),
+                 "" if al is None else f"; scale {al.scale:.4g} +- {al.scale_sigma:.1%}, gravity error "
+                                       f"{al.gravity_error:+.2f} m/s^2, excitation {al.excitation:.2f} m/s^2")
+        for upd in self.landmarks.landed_updates if self.backend is not None else ():
+            _log_start_keyframe(upd)
+        self.last_init = res
 
     def _still_frame(self, frame_id: int, t: float, rest: RestTest) -> VioFrame:
         """A resting camera's frame (:mod:`vio_depth.vio.rest`); the window is not updated."""

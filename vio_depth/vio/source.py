@@ -22,6 +22,7 @@ from matchers import Features, Matcher, create_matcher
 from vio_core.errors import InputError
 
 from ..frame import Frame, ImuData
+from ..landmarks import ProcessWindow
 from ..poses import FramePose, RelativePose
 from .estimator import VioEstimator, VioFrame
 from .landmark_feed import OdometryLandmarks
@@ -39,14 +40,16 @@ class VioPoseSource:
         imu: the IMU samples (with ``T_c_i``).
         matcher: the matcher that extracts the features handed to :meth:`track`.
         settings: :class:`~vio_depth.vio.VioSettings`.
+        backend: the landmark window's worker, started early (:class:`VioEstimator`), or None.
     """
 
     name = "vio"
 
-    def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings()):
+    def __init__(self, imu: ImuData, matcher: Matcher, settings: VioSettings = VioSettings(),
+                 backend: ProcessWindow | None = None):
         self.settings = settings
         self.matcher = matcher
-        self.estimator = VioEstimator(imu, matcher, settings)
+        self.estimator = VioEstimator(imu, matcher, settings, backend)
         self._results: OrderedDict[int, FramePose] = OrderedDict()
         self._last: int | None = None
         self._main_session: tuple[int, int | None] | None = None  # (history size, session)

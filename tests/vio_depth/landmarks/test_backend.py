@@ -25,6 +25,7 @@ from vio_depth.landmarks import (
     pose_prior_preset,
 )
 from vio_depth.landmarks.backend import _serve
+from vio_depth.landmarks.motion import MotionFactors, PosePriorFactors
 
 from .synthetic import IdMatcher, make_scene
 
@@ -98,8 +99,7 @@ def test_a_snapshot_reads_exactly_as_the_window_did_also_after_pickling(scene):
 
 def test_a_window_in_the_worker_gives_the_same_updates_as_one_here(scene, worker):
     inline = LandmarkWindow(SETTINGS)
-    empty = worker.reset(SETTINGS)
-    assert empty.keyframe_ids == [] and empty.landmarks() is None
+    assert worker.reset(SETTINGS) is None  # returns at once
     for kf in _keyframes(scene, [0, 2, 4, 6, 8]):
         here = inline.add_keyframe(kf)
         there, snap = worker.insert(kf)
@@ -122,9 +122,63 @@ def test_submit_returns_at_once_and_result_waits(scene, worker):
     assert update.ok and snap.keyframe_ids == [0, 2] and not worker.pending and not worker.ready()
     with pytest.raises(InputError, match="no keyframe is being inserted"):
         worker.result()
-    # a pending result is discarded by a reset
+    # a pending result is discarded by a reset, which does not wait for the worker
     worker.submit(kfs[2])
-    assert worker.reset(SETTINGS).keyframe_ids == [] and not worker.pending
+    worker.reset(SETTINGS)
+    assert not worker.pending and not worker.ready()
+    update, snap = worker.insert(kfs[0])
+    assert update.ok and snap.keyframe_ids == [0]
+
+
+def test_a_batch_is_inserted_in_order_and_stops_at_the_first_refused_keyframe(scene, worker):
+    """submit_batch (an initialisation's keyframes) gives what inserting them one by one gives;
+    a keyframe the window refuses ends the batch and its update comes last."""
+    kfs = _keyframes(scene, [0, 2, 4, 6])
+    inline = LandmarkWindow(SETTINGS)
+    here = [inline.add_keyframe(kf) for kf in kfs]
+    worker.reset(SETTINGS)
+    worker.submit_batch([(kf, None, None) for kf in kfs])
+    assert worker.pending
+    updates, snap = worker.batch_result()
+    assert [u.frame_id for u in updates] == [0, 2, 4, 6] and all(u.ok for u in updates)
+    assert [u.lm_error_after for u in updates] == pytest.approx([u.lm_error_after for u in here], rel=1e-9)
+    _assert_same_window(inline, snap)
+    with pytest.raises(InputError, match="no keyframe"):
+        worker.submit_batch([])
+
+
+class _RefusesKeyframe2(PosePriorFactors):
+    """Pose priors that refuse keyframe 2 (module level: pickled to the worker's loop)."""
+
+    def __init__(self):
+        super().__init__(SETTINGS.pose_prior)
+
+    def factors(self, previous, current, estimate, initial=None):
+        if current.frame_id == 2:
+            return MotionFactors.failed("keyframe 2 is refused")
+        return super().factors(previous, current, estimate, initial)
+
+
+def test_a_batch_stops_at_the_first_keyframe_the_window_refuses(scene):
+    """The worker's loop (in a thread, as below) ends a batch at a refused keyframe: its update
+    comes last, the window keeps the keyframes before it."""
+    here, there = multiprocessing.Pipe()
+    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
+    thread.start()
+    here.send(("new", SETTINGS, _RefusesKeyframe2))
+    assert here.recv()[0] == "ok"
+    kfs = _keyframes(scene, [0, 2, 4])
+    here.send(("add", [(kf, None, None) for kf in kfs]))
+    kind, updates, snap = here.recv()
+    assert kind == "ok" and [u.frame_id for u in updates] == [0, 2]
+    assert updates[0].ok and not updates[1].ok and "keyframe 2 is refused" in updates[1].reason
+    assert snap.keyframe_ids == [0]
+    here.send(("add", [(kfs[1], None, None)]))  # the only keyframe refused: the window is unchanged
+    kind, updates, snap = here.recv()
+    assert kind == "ok" and not updates[0].ok and snap is None
+    here.send(("stop",))
+    thread.join(timeout=5)
+    assert not thread.is_alive()
 
 
 def test_errors_in_the_worker_are_raised_here_as_they_would_be_inline(scene, worker):
@@ -173,9 +227,9 @@ def test_a_numerical_failure_in_the_worker_is_reported_as_one_and_the_window_dro
     here.send(("new", SETTINGS, _Failing))
     assert here.recv()[0] == "ok"
     kf = _keyframes(scene, [0])[0]
-    here.send(("add", kf, None, None))
+    here.send(("add", [(kf, None, None)]))
     assert here.recv() == ("numerical", "the motion source failed")
-    here.send(("add", kf, None, None))
+    here.send(("add", [(kf, None, None)]))
     kind, exc, _ = here.recv()
     assert kind == "raise" and isinstance(exc, InputError) and "no window" in str(exc)
     here.send(("stop",))
@@ -183,11 +237,13 @@ def test_a_numerical_failure_in_the_worker_is_reported_as_one_and_the_window_dro
     assert not thread.is_alive()
 
 
-def test_a_request_the_worker_cannot_read_is_an_error_here_and_the_worker_lives_on(worker):
+def test_a_request_the_worker_cannot_read_is_an_error_here_and_the_worker_lives_on(scene, worker):
+    worker.reset(SETTINGS, _Failing)  # a class of this test module: not importable there
     with pytest.raises(WorkerError, match="ModuleNotFoundError|No module named"):
-        worker.reset(SETTINGS, _Failing)  # a class of this test module: not importable there
+        worker.ping()  # the reset's failure comes with the next wait
     worker.ping()
-    assert worker.reset(SETTINGS).keyframe_ids == []
+    worker.reset(SETTINGS)
+    assert worker.insert(_keyframes(scene, [0])[0])[1].keyframe_ids == [0]
 
 
 def test_backend_settings_are_checked():

@@ -1,7 +1,8 @@
 """The odometry with its landmark window in a worker process (``VioSettings.backend`` kind
 ``process``, vio_depth/landmarks/backend.py) on a synthetic scene of known truth: taken over
 one frame later it reproduces the inline run exactly; taken over later it stays as accurate,
-every frame keeps a pose, and runs are reproducible."""
+every frame keeps a pose, and runs are reproducible; an initialisation's window built in the
+worker is taken over start_lag_frames later, the frames between wait."""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ def scene():
 def _run(scene, backend: WindowBackendSettings):
     est = VioEstimator(scene.imu, IdMatcher(), replace(SETTINGS, backend=backend))
     out = [est.process(f.index, f.timestamp, f.camera, scene.features[k]) for k, f in enumerate(scene.frames)]
-    poses = np.stack([est.history.pose(i) for i in range(len(scene.frames))])
+    nan = np.full((4, 4), np.nan)  # a frame the odometry never posed
+    poses = np.stack([nan if est.history.pose(i) is None else est.history.pose(i) for i in range(len(scene.frames))])
     if est.backend is not None:
         est.backend.close()
     return est, out, poses
@@ -43,7 +45,7 @@ def inline(scene):
 
 def test_taken_over_at_the_next_frame_the_worker_reproduces_the_inline_run(scene, inline):
     _, out_inline, poses_inline = inline
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=1))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=1, start_lag_frames=0))
     assert [o.status for o in out] == [o.status for o in out_inline]
     np.testing.assert_array_equal(poses, poses_inline)  # the final history, bit for bit
     # the keyframes after the start were submitted, not inserted, by the frame itself
@@ -53,8 +55,8 @@ def test_taken_over_at_the_next_frame_the_worker_reproduces_the_inline_run(scene
 def test_taken_over_later_it_tracks_as_well_and_reproducibly(scene, inline):
     _, out_inline, _ = inline
     lag = 4
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=lag))
-    _, out2, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=lag))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0))
+    _, out2, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0))
     np.testing.assert_array_equal(poses, poses2)
     first = next(i for i, o in enumerate(out) if o.ok)
     assert first == next(i for i, o in enumerate(out_inline) if o.ok)
@@ -67,3 +69,30 @@ def test_taken_over_later_it_tracks_as_well_and_reproducibly(scene, inline):
     ids = est.landmarks.window.keyframe_ids
     tracked = [k for k in ids if k > first]
     assert len(tracked) >= 3 and np.all(np.diff(tracked) >= lag), ids
+
+
+def test_the_start_built_in_the_worker_is_taken_over_later_and_the_frames_between_wait(scene, inline):
+    """With ``start_lag_frames`` the initialisation's frame does not wait for its keyframes'
+    insertion (1.5 s on the ASL sample before): it and the frames up to the take-over are
+    ``initialising``; the take-over frame is tracked (``initialised`` set) and so is every one
+    after it; the trajectory is as accurate and the run reproducible."""
+    _, out_inline, _ = inline
+    start = next(i for i, o in enumerate(out_inline) if o.ok)  # the inline run's initialisation frame
+    lag = 5
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
+    _, _, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
+    np.testing.assert_array_equal(poses, poses2)
+    assert [o.status.value for o in out[start: start + lag]] == ["initialising"] * lag
+    assert all("worker" in o.reason for o in out[start: start + lag])
+    landed = out[start + lag]
+    assert landed.ok and landed.initialised == out_inline[start].initialised
+    assert all(o.ok for o in out[start + lag:])
+    assert est.last_init is not None and est.last_init.keyframes[-1].frame_id == scene.frames[start].index
+    # the initialisation's keyframes and the frames it bridged are posed; the ones that waited not
+    waited = [scene.frames[k].index for k in range(start + 1, start + lag)]
+    assert all(est.history.pose(f) is None for f in waited)
+    posed = np.flatnonzero(np.isfinite(poses[:, 0, 0]))
+    assert len(posed) >= len(scene.frames) - start - lag
+    t = np.array([scene.frames[k].timestamp for k in posed])
+    ate = absolute_trajectory_error(CameraTrajectory(t, poses[posed]), CameraTrajectory(t, scene.T_w_c[posed]))
+    assert ate.rmse < 0.005 * scene.path_length() and abs(ate.scale - 1) < 0.01, (ate.rmse, ate.scale)
