@@ -103,8 +103,8 @@ class ProcessWindow:
         self._proc.start()
         child.close()
         self._pending = False
-        # replies owed by the worker before the pending result's: "new" (a reset's: its error is
-        # raised, its snapshot dropped) or "drop" (a result discarded by a reset)
+        # replies owed by the worker before the pending result's: "new" (a reset's, short: its
+        # error is raised, nothing else is read from it)
         self._owed: deque[str] = deque()
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
@@ -133,8 +133,8 @@ class ProcessWindow:
 
     def reset(self, settings: LandmarkSettings, motion_factory: Callable[[], Any] | None = None) -> None:
         """Start a new, empty window in the worker; returns at once, without waiting for the
-        worker (a worker still starting keeps the caller waiting only at the first result). A
-        pending result is discarded. The new window's snapshot is
+        worker (a worker still starting keeps the caller waiting only at the first result) --
+        except for a pending result, which is waited for and discarded. The new window's snapshot is
         :meth:`WindowSnapshot.empty <.snapshot.WindowSnapshot.empty>`; a failure to build it
         (e.g. a ``motion_factory`` the worker cannot import) is raised by the next call that
         waits for the worker (:meth:`result`, :meth:`insert`, :meth:`ping`).
@@ -144,11 +144,16 @@ class ProcessWindow:
             motion_factory: picklable callable returning the window's
                 :class:`~.motion.MotionFactorSource`, or None for pose priors.
         """
-        if self._pending:
-            self._pending = False
-            self._owed.append("drop")
+        if self._pending:  # read (and drop) its reply first: a snapshot may not fit in the pipe's
+            # buffer, and a worker blocked sending it while we send would never read (deadlock)
+            try:
+                self.result()
+            except WorkerError:
+                raise
+            except VioDepthError:
+                pass  # the old window's failure: it is dropped anyway
         self._send(("new", settings, motion_factory))
-        self._owed.append("new")
+        self._owed.append("new")  # a short reply: the worker sends it and reads on
 
     def submit(self, kf: KeyframeInput, initial: Any | None = None, samples: Any | None = None) -> None:
         """Send a keyframe (:meth:`LandmarkWindow.add_keyframe`'s arguments; ``samples``: the
@@ -219,15 +224,7 @@ class ProcessWindow:
         return reply
 
     def _owed_reply(self) -> None:
-        kind = self._owed.popleft()
-        if kind == "drop":
-            try:
-                self._receive()
-            except WorkerError:
-                raise
-            except VioDepthError:
-                pass  # the old window's failure: it is dropped anyway
-            return
+        self._owed.popleft()
         self._receive()
 
     def _receive(self):

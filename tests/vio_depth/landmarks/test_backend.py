@@ -9,6 +9,8 @@ from __future__ import annotations
 import multiprocessing
 import pickle
 import threading
+import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -128,6 +130,42 @@ def test_submit_returns_at_once_and_result_waits(scene, worker):
     assert not worker.pending and not worker.ready()
     update, snap = worker.insert(kfs[0])
     assert update.ok and snap.keyframe_ids == [0]
+
+
+def _padded(kf: KeyframeInput, n: int) -> KeyframeInput:
+    """``kf`` with ``n`` unmatched keypoints appended (a large message: ~16 n bytes)."""
+    extra = np.random.default_rng(kf.frame_id).uniform(0, 400, (n, 2))
+    return replace(kf, keypoints=np.concatenate([kf.keypoints, extra]))
+
+
+def test_a_reset_with_a_large_result_pending_and_a_large_batch_after_it_do_not_deadlock(scene):
+    """A reset once read nothing of a pending result: the worker blocked sending a snapshot
+    larger than the pipe's buffer while the caller blocked sending a large batch, and both
+    waited for ever (seen on the street sample when the odometry was lost while a keyframe was
+    in the worker, then started again)."""
+    big = [_padded(kf, 40_000) for kf in _keyframes(scene, [0, 2, 4])]  # ~0.6 MB each
+    worker = ProcessWindow()
+    try:
+        worker.reset(SETTINGS)
+        worker.insert(big[0])
+        worker.submit(big[1])  # its snapshot holds two keyframes' keypoints: > the pipe's buffer
+        time.sleep(2.0)  # the worker is now blocked sending it (before, for ever)
+        done = []
+
+        def restart():
+            worker.reset(SETTINGS)
+            worker.submit_batch([(kf, None, None) for kf in big])
+            done.append(worker.batch_result())
+
+        thread = threading.Thread(target=restart, daemon=True)
+        thread.start()
+        thread.join(timeout=60)
+        assert done, "reset + submit_batch deadlocked with the worker"
+        updates, snap = done[0]
+        assert all(u.ok for u in updates) and snap.keyframe_ids == [0, 2, 4]
+    finally:
+        worker._proc.kill()  # a deadlocked worker would not stop
+        worker.close()
 
 
 def test_a_batch_is_inserted_in_order_and_stops_at_the_first_refused_keyframe(scene, worker):
