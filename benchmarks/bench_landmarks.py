@@ -38,9 +38,19 @@ oracle + 0.02.
 milliseconds per frame (matching, the landmark window or the two-view pairs, triangulation:
 what the two paths do differently).
 
+``s/fr mean``: the run's mean pipeline seconds per frame (keyframe frames, which cost the
+landmark path most, weigh in by their share instead of falling on one side of the median).
+
 Run: ``python benchmarks/bench_landmarks.py [--datasets 7scenes,kitti,street,room]
-[--frames N] [--data DIR] [--paths two-view,landmarks]``. Seconds per frame are printed
-(the run's median pipeline time): compare them only within one run.
+[--frames N] [--data DIR] [--paths two-view,landmarks] [--matcher sift|klt] [--edge-guard F]``
+(``--matcher klt --edge-guard 0.1``: the KLT front end as ``vio-depth run --matcher klt
+--edge-guard 0.1``). Seconds per frame are printed: compare them only within one run.
+
+Same-machine A/B against a baseline revision: ``--baseline-rev REV [--repeats N]`` runs the
+whole selection with ``REV``'s code (a temporary git worktree, this script run in a subprocess
+with that checkout's packages first on the path) and with this checkout's, alternating, ``N``
+times each, and prints one table row per run and path (points stage ms, s/fr median and mean,
+AbsRel) and the landmark / two-view ratios of each run.
 """
 
 from __future__ import annotations
@@ -58,8 +68,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # run as a script from anywhere: this checkout's packages first
-    sys.path.insert(0, str(REPO))
+# run as a script from anywhere: this checkout's packages first -- or, for one side of an A/B
+# run (--code DIR, internal), those of the checkout DIR
+CODE = Path(sys.argv[sys.argv.index("--code") + 1]).resolve() if "--code" in sys.argv[:-1] else REPO
+if str(CODE) not in sys.path:
+    sys.path.insert(0, str(CODE))
 
 from vio_depth import Pipeline, PipelineSettings, open_sequence  # noqa: E402
 from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence  # noqa: E402
@@ -88,10 +101,15 @@ DATASETS = {d.name: d for d in (
 PATHS = {"two-view": "sfm", "landmarks": "landmarks"}
 
 
-def run_path(ds: Dataset, sequence, n: int, path: str, out: Path) -> tuple[dict, list[dict]]:
-    """One path over the first ``n`` frames: ``(metrics.json, frame records)``."""
-    settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing)
-    settings = PipelineSettings.from_dict({"disparity": {"source": ds.disparity}}, settings)
+def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",
+             edge_guard: float | None = None) -> tuple[dict, list[dict]]:
+    """One path over the first ``n`` frames: ``(metrics.json, frame records)``; ``matcher`` a
+    matcher preset, ``edge_guard`` the rescaler's ``max_disparity_spread`` (``--edge-guard``) or None."""
+    settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing, matcher=matcher)
+    overrides = {"disparity": {"source": ds.disparity}}
+    if edge_guard is not None:
+        overrides["rescaler"] = {"max_disparity_spread": edge_guard}
+    settings = PipelineSettings.from_dict(overrides, settings)
     run_sequence(sequence, Pipeline(settings, sequence=sequence), out,
                  RunSettings(max_frames=n, max_eval_depth=ds.max_depth), progress=False)
     return json.loads((out / "metrics.json").read_text()), read_frames_jsonl(out / "frames.jsonl")[1]
@@ -121,7 +139,8 @@ def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
             f"{row.get('delta1', float('nan')):7.4f} {oracle.get('abs_rel', float('nan')):7.4f} {ratio:8.2f} "
             f"{metrics['frames_with_depth']:4d}/{metrics['frames_processed']:<4d} {len(bad):5d} "
             f"{_median(f['seconds'] for f in frames):6.3f} "
-            f"{_mean_ms(f.get('timings', {}).get('points') for f in frames):7.1f}")
+            f"{_mean_ms(f.get('timings', {}).get('points') for f in frames):7.1f} "
+            f"{_mean_ms(f['seconds'] for f in frames) / 1000:10.3f}")
     line += f"\n  {path} statuses: {statuses}"
     if bad:
         line += f"\n  {path} ok frames above 2 x oracle + 0.02: {bad[:40]}" + (" ..." if len(bad) > 40 else "")
@@ -134,12 +153,25 @@ def main(argv=None) -> int:
     parser.add_argument("--paths", default="two-view,landmarks")
     parser.add_argument("--frames", type=int, default=None, help="cap every dataset at N frames")
     parser.add_argument("--data", type=Path, default=REPO / ".." / "shared" / "data")
+    parser.add_argument("--matcher", default="sift", help="matcher preset (sift, klt, ...)")
+    parser.add_argument("--edge-guard", type=float, default=None, metavar="F",
+                        help="the rescaler's max_disparity_spread, as vio-depth run --edge-guard")
+    parser.add_argument("--baseline-rev", default=None, help="A/B: also run this revision's code, alternating")
+    parser.add_argument("--repeats", type=int, default=1, help="A/B: runs of each side")
+    parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # internal: one A/B side
+    parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)  # internal: one A/B side
     args = parser.parse_args(argv)
-    print(f"bench_landmarks, {datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPU cores, "
+    if args.baseline_rev is not None:
+        return ab_main(args)
+    if args.json:
+        print(json.dumps(summaries(args)))
+        return 0
+    print(f"bench_landmarks (matcher {args.matcher}, edge guard {args.edge_guard}), {datetime.date.today()}, "
+          f"{platform.machine()}, {os.cpu_count()} CPU cores, "
           f"python {platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.1f}")
     print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
     head = (f"{'path':10s} {'pt med':>7s} {'pt p90':>7s} {'bias':>7s} {'pts/fr':>6s} {'AbsRel':>7s} "
-            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s} {'pts ms':>7s}")
+            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s} {'pts ms':>7s} {'s/fr mean':>10s}")
     for name in args.datasets.split(","):
         ds = DATASETS[name]
         folder = ds.folder(args.data)
@@ -152,8 +184,76 @@ def main(argv=None) -> int:
               f"'{ds.pairing}', landmark pose prior '{sequence.pose_kind}'\n{head}")
         with tempfile.TemporaryDirectory() as tmp:
             for path in args.paths.split(","):
-                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path)
+                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard)
                 print(format_row(path, metrics, frames), flush=True)
+    return 0
+
+
+def summaries(args) -> list[dict]:
+    """One A/B side: per dataset and path, the points stage's mean ms, s/fr median and mean, AbsRel."""
+    out = []
+    for name in args.datasets.split(","):
+        ds = DATASETS[name]
+        folder = ds.folder(args.data)
+        if not folder.exists():
+            continue
+        sequence = open_sequence(folder)
+        n = min(len(sequence), ds.frames or len(sequence), args.frames or len(sequence))
+        with tempfile.TemporaryDirectory() as tmp:
+            for path in args.paths.split(","):
+                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard)
+                out.append({"dataset": name, "path": path, "frames": n,
+                            "pts_ms": _mean_ms(f.get("timings", {}).get("points") for f in frames),
+                            "s_median": _median(f["seconds"] for f in frames),
+                            "s_mean": _mean_ms(f["seconds"] for f in frames) / 1000.0,
+                            "abs_rel": metrics["metrics"].get(PATHS[path], {}).get("abs_rel", float("nan")),
+                            "depth": f"{metrics['frames_with_depth']}/{metrics['frames_processed']}"})
+    return out
+
+
+def ab_main(args) -> int:
+    """Alternate runs of the baseline revision's code and this checkout's (module docstring)."""
+    import subprocess
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from baseline_checkout import baseline_checkout
+
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+    print(f"bench_landmarks A/B (matcher {args.matcher}, edge guard {args.edge_guard}), "
+          f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, "
+          f"{os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}; baseline {args.baseline_rev}, "
+          f"this checkout at {head} (plus any uncommitted changes)")
+    print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
+    passed = ["--datasets", args.datasets, "--paths", args.paths, "--data", str(args.data), "--matcher", args.matcher,
+              "--json"] + (["--frames", str(args.frames)] if args.frames else []) \
+        + (["--edge-guard", str(args.edge_guard)] if args.edge_guard is not None else [])
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp, baseline_checkout(args.baseline_rev, Path(tmp) / "baseline") as base:
+        for k in range(args.repeats):
+            for side, code in ((f"baseline {args.baseline_rev}", base), ("this checkout", REPO)):
+                res = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--code", str(code), *passed],
+                                     capture_output=True, text=True, check=True)
+                for r in json.loads(res.stdout.strip().splitlines()[-1]):
+                    rows.append((side, k + 1, r))
+                    print(f"  {side} run {k + 1} {r['dataset']} {r['path']}: pts {r['pts_ms']:.1f} ms, s/fr "
+                          f"{r['s_median']:.3f} / mean {r['s_mean']:.3f}, AbsRel {r['abs_rel']:.4f}", flush=True)
+    print("\n| dataset | code | run | two-view pts ms | landmarks pts ms | pts ratio | two-view s/fr median / mean "
+          "| landmarks s/fr median / mean | whole ratio median / mean | two-view AbsRel | landmarks AbsRel |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for side, k, r in rows:
+        if r["path"] != "landmarks":
+            continue
+        tv = next((q for s_, k_, q in rows if s_ == side and k_ == k and q["dataset"] == r["dataset"]
+                   and q["path"] == "two-view"), None)
+        if tv is None:
+            print(f"| {r['dataset']} | {side} | {k} | - | {r['pts_ms']:.1f} | - | - | {r['s_median']:.3f} / "
+                  f"{r['s_mean']:.3f} | - | - | {r['abs_rel']:.4f} |")
+            continue
+        print(f"| {r['dataset']} | {side} | {k} | {tv['pts_ms']:.1f} | {r['pts_ms']:.1f} | "
+              f"{r['pts_ms'] / tv['pts_ms']:.2f} x | {tv['s_median']:.3f} / {tv['s_mean']:.3f} | "
+              f"{r['s_median']:.3f} / {r['s_mean']:.3f} | {r['s_median'] / tv['s_median']:.2f} / "
+              f"{r['s_mean'] / tv['s_mean']:.2f} x | {tv['abs_rel']:.4f} | {r['abs_rel']:.4f} |")
     return 0
 
 
