@@ -229,10 +229,15 @@ def _inv2(S: np.ndarray) -> np.ndarray:
     return out
 
 
+def _finite(a: np.ndarray, **kwargs) -> np.ndarray:
+    """``np.nan_to_num(a, **kwargs)``, without its cost when ``a`` is already finite (the usual case)."""
+    return a if np.isfinite(a).all() else np.nan_to_num(a, **kwargs)
+
+
 def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
     with np.errstate(invalid="ignore", over="ignore"):
-        A0 = np.nan_to_num(A)
+        A0 = _finite(A)
         det = np.linalg.det(A0)
     scale = np.einsum("nii->n", A0) ** 3
     ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
@@ -340,7 +345,12 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
 
     def residuals(X, o=slice(None)):
         """Camera points and ideal-pixel residuals of the observations ``o`` at points ``X``."""
-        p_c = np.einsum("nij,nj->ni", R_cw[o], X[t[o]] - centres[o])
+        return residuals_of(X[t[o]], o)
+
+    def residuals_of(X_obs, o):
+        """:func:`residuals` at ``X_obs`` (one point per observation of ``o``). Every value is
+        computed row by row: the same whichever other observations are in ``o``."""
+        p_c = np.einsum("nij,nj->ni", R_cw[o], X_obs - centres[o])
         with np.errstate(divide="ignore", invalid="ignore"):
             proj = np.column_stack([fx[o] * p_c[:, 0] / p_c[:, 2] + cx[o], fy[o] * p_c[:, 1] / p_c[:, 2] + cy[o]])
         return p_c, proj - ideal[o]
@@ -352,9 +362,11 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     active = status == TrackStatus.VALID
     solve = active.copy()
     S_inv = np.zeros((m, 2, 2))
+    # camera points and residuals of every observation at the current points, kept up to date
+    # as the points move (residuals are row-wise: what recomputing them would give)
+    pc_all, r_all = residuals(X)
     o = np.nonzero(solve[t])[0]  # observations of the tracks solved in this round
-    p_c, _ = residuals(X, o)
-    S_inv[o] = obs_info(p_c, o)[1]
+    S_inv[o] = obs_info(pc_all[o], o)[1]
     for round_ in range(s.outlier_rounds + 1):
         # --- Gauss-Newton on the whitened reprojection error (the whitening is fixed within
         # a round: it depends on the point only through the pose term, slowly)
@@ -366,37 +378,41 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             o = np.nonzero(moving[t])[0]
             tc = (np.cumsum(moving) - 1)[t[o]]  # compact track index of each observation
             n = len(rows)
-            p_c, r = residuals(X, o)
+            p_c, r = pc_all[o], r_all[o]
+            S_o = S_inv[o]
             Jp = _projection_jacobian(p_c, fx[o], fy[o])
             use = inlier[o] & (p_c[:, 2] > 0)
             J = Jp @ R_cw[o]  # (M, 2, 3) d pixel / d X
-            JtS = np.transpose(J, (0, 2, 1)) @ S_inv[o]
+            JtS = np.transpose(J, (0, 2, 1)) @ S_o
             wts = use.astype(float)
             H = _sum_by(tc, wts[:, None, None] * (JtS @ J), n)
-            g = _sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, np.nan_to_num(r)), n)
+            g = _sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, _finite(r)), n)
             step, solvable = _solve3(H, -g)
-            e0 = _quad2(r, S_inv[o])
+            e0 = _quad2(r, S_o)
             cost0 = np.bincount(tc, weights=np.where(use & np.isfinite(e0), e0, 0.0), minlength=n)
-            X_new = X.copy()
-            step = np.nan_to_num(step)
-            X_new[rows] = np.where(solvable[:, None], X[rows] + step, X[rows])
-            p_new, r_new = residuals(X_new, o)
-            e1 = _quad2(r_new, S_inv[o])
+            step = _finite(step)
+            X_rows = X[rows]
+            X_try = np.where(solvable[:, None], X_rows + step, X_rows)
+            p_new, r_new = residuals_of(X_try[tc], o)
+            e1 = _quad2(r_new, S_o)
             use1 = use & (p_new[:, 2] > 0) & np.isfinite(e1)
             cost1 = np.bincount(tc, weights=np.where(use1, e1, 0.0), minlength=n)
-            better = solvable & (cost1 <= cost0) & np.all(np.isfinite(X_new[rows]), axis=1)
-            X[rows[better]] = X_new[rows[better]]
+            better = solvable & (cost1 <= cost0) & np.all(np.isfinite(X_try), axis=1)
+            X[rows[better]] = X_try[better]
+            X_rows = np.where(better[:, None], X_try, X_rows)
+            moved = o[better[tc]]
+            pc_all[moved], r_all[moved] = p_new[better[tc]], r_new[better[tc]]
             # converged: the track moved by at most 1e-7 of its distance to the cameras
-            dist2 = np.bincount(tc, weights=np.sum((X[t[o]] - centres[o]) ** 2, 1), minlength=n)
+            dist2 = np.bincount(tc, weights=np.sum((X_rows[tc] - centres[o]) ** 2, 1), minlength=n)
             scale = np.maximum(np.sqrt(dist2 / np.maximum(n_obs[rows], 1)), 1e-9)
             moving[rows] = better & (np.linalg.norm(step, axis=1) > 1e-7 * scale)
         if round_ == s.outlier_rounds:
             break
         # --- drop the worst outlier of each track that has one
         o = np.nonzero(solve[t])[0]
-        p_c, r = residuals(X, o)
+        p_c, r = pc_all[o], r_all[o]
         S_inv[o] = obs_info(p_c, o)[1]
-        e = _quad2(np.nan_to_num(r, nan=1e6), S_inv[o])
+        e = _quad2(_finite(r, nan=1e6), S_inv[o])
         e = np.where(p_c[:, 2] > 0, e, np.inf)
         bad = inlier[o] & (e > s.max_residual_sigmas**2)
         if not bad.any():
@@ -413,9 +429,9 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         solve &= active
 
     # --- final residuals, gate, covariance, per-observation depth and sigma
-    p_c, r = residuals(X)
+    p_c, r = pc_all, r_all
     Jp, S_inv, J_pose = obs_info(p_c)
-    e = _quad2(np.nan_to_num(r, nan=1e6), S_inv)
+    e = _quad2(_finite(r, nan=1e6), S_inv)
     behind = p_c[:, 2] <= 0
     inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
