@@ -80,6 +80,12 @@ class WindowGraph:
         self._gtsam = gtsam
         self.values = gtsam.Values()
         self.factors: list = []  # (frozenset of keys, nonlinear factor): priors, motion, marginals
+        # the projection factors of the last refinement, reused by the next one (building them
+        # is the refinement's Python cost): frame id -> (keys, NonlinearFactorGraph of the
+        # keyframe's factors in that order, {key: factor}), key = keypoint << 32 | track id;
+        # valid for the noise settings in _projection_noise
+        self._projections: dict[int, tuple] = {}
+        self._projection_noise = None
 
     def copy_values(self):
         """A copy of the estimate (``gtsam.Values``)."""
@@ -138,40 +144,71 @@ class WindowGraph:
             graph.add(f)
         values = self.non_landmark_values()
         rows = np.nonzero(in_graph)[0]
-        for tid, p in zip(mv.track_ids[rows].tolist(), mv.points_w[rows]):
-            values.insert(L(tid), gtsam.Point3(p))
+        landmark_keys = [L(tid) for tid in mv.track_ids[rows].tolist()]
+        insert = values.insert
+        for key, p in zip(landmark_keys, mv.points_w[rows]):
+            insert(key, gtsam.Point3(p))
         pix = s.multiview.pixel_sigma_px
-        robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(s.huber_sigmas),
-                                                gtsam.noiseModel.Isotropic.Sigma(2, pix))
-        # one projection factor per used observation; the keys and pixels are converted to
-        # Python/gtsam objects per keyframe in bulk (the factor loop is the refinement's
-        # Python cost)
         idx = np.nonzero(use)[0]
-        tids = mv.track_ids[mv.obs_track[idx]]
-        factor, add = gtsam.GenericProjectionFactorCal3DS2, graph.add  # bound once: ~3 us per factor is all pybind
+        tids = mv.track_ids[mv.obs_track[idx]].astype(np.int64)
+        noise = (float(pix), float(s.huber_sigmas))
+        if noise != self._projection_noise or (len(tids) and tids.max() >= 1 << 32):  # (keys below: 32-bit ids)
+            self._projections, self._projection_noise = {}, noise
+        robust = None
+        # one projection factor per used observation, in keyframe order; a factor of the last
+        # refinement with the same keyframe, keypoint and track is reused (it is the same
+        # factor: a keyframe's keypoints, camera and the noise model do not change) -- a
+        # keyframe's whole list of them when it is unchanged --, the others are built, with the
+        # keys and pixels converted per keyframe in bulk (~3 us per factor, all pybind: the
+        # refinement's Python cost)
+        factor = gtsam.GenericProjectionFactorCal3DS2
         frames = obs.frame[idx]
+        kept: dict[int, tuple[list, object, dict[int, object]]] = {}
         for f, cam in cameras.items():
             sel = frames == f
             if not sel.any():
                 continue
+            keys = ((obs.keypoint[idx[sel]].astype(np.int64) << 32) | tids[sel]).tolist()
+            old_keys, old_graph, old = self._projections.get(int(f), ([], None, {}))
+            if keys == old_keys:  # the keyframe's factors of the last refinement, in the same order
+                graph.push_back(old_graph)
+                kept[int(f)] = (old_keys, old_graph, old)
+                continue
+            if robust is None:
+                robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(s.huber_sigmas),
+                                                        gtsam.noiseModel.Isotropic.Sigma(2, pix))
             cal = calibration(cam)
             uv = obs.uv[idx[sel]]
             if cal is None:  # ideal pixels with an undistorted calibration
                 uv = cam.undistort_points(uv)
                 cal = gtsam.Cal3DS2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, 0.0, 0.0, 0.0, 0.0)
             x = X(int(f))
-            for tid, p in zip(tids[sel].tolist(), np.asarray(uv, float)):
-                add(factor(p, robust, x, L(tid), cal))
+            sub, new = gtsam.NonlinearFactorGraph(), {}
+            add = sub.add
+            for k, tid, p in zip(keys, tids[sel].tolist(), np.asarray(uv, float)):
+                fac = old.get(k)
+                if fac is None:
+                    fac = factor(p, robust, x, L(tid), cal)
+                add(fac)
+                new[k] = fac
+            graph.push_back(sub)
+            kept[int(f)] = (keys, sub, new)
+        self._projections = kept
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(s.lm_max_iterations)
         params.setAbsoluteErrorTol(s.lm_min_error_decrease)
-        before = graph.error(values)
         try:
-            result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+            # the optimizer's own errors: graph.error at the start and at the result, computed once
+            before = optimizer.error()
+            result = optimizer.optimize()
+            after = optimizer.error()
         except RuntimeError:  # indeterminant system: keep the previous estimate
             result = values
-        after = graph.error(result)
-        self.values = self.non_landmark_values(result)
+            before = after = graph.error(values)
+        self.values = gtsam.Values(result)  # the estimate without the landmarks
+        for key in landmark_keys:
+            self.values.erase(key)
         try:
             marginals = gtsam.Marginals(graph, result)
             J = marginals.jointMarginalCovariance(gtsam.KeyVector([X(f) for f in cameras])).fullMatrix()
