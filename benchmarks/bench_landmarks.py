@@ -50,7 +50,9 @@ Same-machine A/B against a baseline revision: ``--baseline-rev REV [--repeats N]
 whole selection with ``REV``'s code (a temporary git worktree, this script run in a subprocess
 with that checkout's packages first on the path) and with this checkout's, alternating, ``N``
 times each, and prints one table row per run and path (points stage ms, s/fr median and mean,
-AbsRel) and the landmark / two-view ratios of each run.
+AbsRel; and CPU time: the points stage's, in its calling thread, and the whole run's, every
+thread, evaluation and writing included -- figures that other jobs on a shared machine inflate
+much less than wall time) and the landmark / two-view ratios of each run.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ import os
 import platform
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,9 +113,29 @@ def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str =
     if edge_guard is not None:
         overrides["rescaler"] = {"max_disparity_spread": edge_guard}
     settings = PipelineSettings.from_dict(overrides, settings)
-    run_sequence(sequence, Pipeline(settings, sequence=sequence), out,
-                 RunSettings(max_frames=n, max_eval_depth=ds.max_depth), progress=False)
+    pipeline = Pipeline(settings, sequence=sequence)
+    # CPU seconds of the points stage (the calling thread's: the window's gtsam and numpy run
+    # there) and of the whole run (every thread): robust to other jobs on the machine
+    stage, cpu = pipeline.points.process, []
+
+    def timed(*args, **kwargs):
+        start = time.thread_time()
+        try:
+            return stage(*args, **kwargs)
+        finally:
+            cpu.append(time.thread_time() - start)
+
+    pipeline.points.process = timed
+    start = time.process_time()
+    run_sequence(sequence, pipeline, out, RunSettings(max_frames=n, max_eval_depth=ds.max_depth), progress=False)
+    LAST_CPU.update(points_ms=1000.0 * float(np.mean(cpu)) if cpu else float("nan"),
+                    run_s=(time.process_time() - start) / max(n, 1))
     return json.loads((out / "metrics.json").read_text()), read_frames_jsonl(out / "frames.jsonl")[1]
+
+
+#: CPU figures of the last :func:`run_path`: ``points_ms`` (points stage, calling thread, mean per
+#: call) and ``run_s`` (the whole run's process CPU seconds, evaluation and writing included, per frame)
+LAST_CPU: dict = {}
 
 
 def _median(values) -> float:
@@ -207,6 +230,7 @@ def summaries(args) -> list[dict]:
                             "s_median": _median(f["seconds"] for f in frames),
                             "s_mean": _mean_ms(f["seconds"] for f in frames) / 1000.0,
                             "abs_rel": metrics["metrics"].get(PATHS[path], {}).get("abs_rel", float("nan")),
+                            "pts_cpu_ms": LAST_CPU["points_ms"], "run_cpu_s": LAST_CPU["run_s"],
                             "depth": f"{metrics['frames_with_depth']}/{metrics['frames_processed']}"})
     return out
 
@@ -236,24 +260,27 @@ def ab_main(args) -> int:
                                      capture_output=True, text=True, check=True)
                 for r in json.loads(res.stdout.strip().splitlines()[-1]):
                     rows.append((side, k + 1, r))
-                    print(f"  {side} run {k + 1} {r['dataset']} {r['path']}: pts {r['pts_ms']:.1f} ms, s/fr "
-                          f"{r['s_median']:.3f} / mean {r['s_mean']:.3f}, AbsRel {r['abs_rel']:.4f}", flush=True)
-    print("\n| dataset | code | run | two-view pts ms | landmarks pts ms | pts ratio | two-view s/fr median / mean "
-          "| landmarks s/fr median / mean | whole ratio median / mean | two-view AbsRel | landmarks AbsRel |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+                    print(f"  {side} run {k + 1} {r['dataset']} {r['path']}: pts {r['pts_ms']:.1f} ms (CPU "
+                          f"{r['pts_cpu_ms']:.1f}), s/fr {r['s_median']:.3f} / mean {r['s_mean']:.3f}, run CPU "
+                          f"{r['run_cpu_s']:.3f} s/fr, AbsRel {r['abs_rel']:.4f}", flush=True)
+    print("\n| dataset | code | run | two-view pts ms (CPU) | landmarks pts ms (CPU) | pts ratio (CPU) | two-view "
+          "s/fr median / mean | landmarks s/fr median / mean | whole ratio median / mean | run CPU ratio "
+          "| two-view AbsRel | landmarks AbsRel |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for side, k, r in rows:
         if r["path"] != "landmarks":
             continue
         tv = next((q for s_, k_, q in rows if s_ == side and k_ == k and q["dataset"] == r["dataset"]
                    and q["path"] == "two-view"), None)
         if tv is None:
-            print(f"| {r['dataset']} | {side} | {k} | - | {r['pts_ms']:.1f} | - | - | {r['s_median']:.3f} / "
-                  f"{r['s_mean']:.3f} | - | - | {r['abs_rel']:.4f} |")
+            print(f"| {r['dataset']} | {side} | {k} | - | {r['pts_ms']:.1f} ({r['pts_cpu_ms']:.1f}) | - | - | "
+                  f"{r['s_median']:.3f} / {r['s_mean']:.3f} | - | - | - | {r['abs_rel']:.4f} |")
             continue
-        print(f"| {r['dataset']} | {side} | {k} | {tv['pts_ms']:.1f} | {r['pts_ms']:.1f} | "
-              f"{r['pts_ms'] / tv['pts_ms']:.2f} x | {tv['s_median']:.3f} / {tv['s_mean']:.3f} | "
-              f"{r['s_median']:.3f} / {r['s_mean']:.3f} | {r['s_median'] / tv['s_median']:.2f} / "
-              f"{r['s_mean'] / tv['s_mean']:.2f} x | {tv['abs_rel']:.4f} | {r['abs_rel']:.4f} |")
+        print(f"| {r['dataset']} | {side} | {k} | {tv['pts_ms']:.1f} ({tv['pts_cpu_ms']:.1f}) | {r['pts_ms']:.1f} "
+              f"({r['pts_cpu_ms']:.1f}) | {r['pts_ms'] / tv['pts_ms']:.2f} x ({r['pts_cpu_ms'] / tv['pts_cpu_ms']:.2f} x) "
+              f"| {tv['s_median']:.3f} / {tv['s_mean']:.3f} | {r['s_median']:.3f} / {r['s_mean']:.3f} | "
+              f"{r['s_median'] / tv['s_median']:.2f} / {r['s_mean'] / tv['s_mean']:.2f} x | "
+              f"{r['run_cpu_s'] / tv['run_cpu_s']:.2f} x | {tv['abs_rel']:.4f} | {r['abs_rel']:.4f} |")
     return 0
 
 
