@@ -241,10 +241,22 @@ def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         det = np.linalg.det(A0)
     scale = np.einsum("nii->n", A0) ** 3
     ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
+    if ok.all():  # the usual case: no masked copies (each matrix is solved on its own either way)
+        return np.linalg.solve(A, b[..., None])[..., 0], ok
     x = np.full(b.shape, np.nan)
     if ok.any():
         x[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
     return x, ok
+
+
+def _project(R_cw, d_w, fx, fy, cx, cy, ideal):
+    """Camera points ``R_cw d_w`` (M, 3) and ideal-pixel residuals (M, 2) of observations at
+    ``ideal`` (M, 2). Every value is computed row by row: the same whichever other rows come
+    along (the Gauss-Newton loop relies on it)."""
+    p_c = np.einsum("nij,nj->ni", R_cw, d_w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proj = np.column_stack([fx * p_c[:, 0] / p_c[:, 2] + cx, fy * p_c[:, 1] / p_c[:, 2] + cy])
+    return p_c, proj - ideal
 
 
 def _linear_points(t, rays_w, centres, w, n_tracks):
@@ -348,12 +360,8 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         return residuals_of(X[t[o]], o)
 
     def residuals_of(X_obs, o):
-        """:func:`residuals` at ``X_obs`` (one point per observation of ``o``). Every value is
-        computed row by row: the same whichever other observations are in ``o``."""
-        p_c = np.einsum("nij,nj->ni", R_cw[o], X_obs - centres[o])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            proj = np.column_stack([fx[o] * p_c[:, 0] / p_c[:, 2] + cx[o], fy[o] * p_c[:, 1] / p_c[:, 2] + cy[o]])
-        return p_c, proj - ideal[o]
+        """:func:`residuals` at ``X_obs`` (one point per observation of ``o``)."""
+        return _project(R_cw[o], X_obs - centres[o], fx[o], fy[o], cx[o], cy[o], ideal[o])
 
     # Only the tracks that can still change are computed: a Gauss-Newton step rejected once
     # would be rejected again (the whitening is fixed within a round), a track that stopped
@@ -379,10 +387,10 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             tc = (np.cumsum(moving) - 1)[t[o]]  # compact track index of each observation
             n = len(rows)
             p_c, r = pc_all[o], r_all[o]
-            S_o = S_inv[o]
-            Jp = _projection_jacobian(p_c, fx[o], fy[o])
+            S_o, R_o, c_o, fx_o, fy_o = S_inv[o], R_cw[o], centres[o], fx[o], fy[o]
+            Jp = _projection_jacobian(p_c, fx_o, fy_o)
             use = inlier[o] & (p_c[:, 2] > 0)
-            J = Jp @ R_cw[o]  # (M, 2, 3) d pixel / d X
+            J = Jp @ R_o  # (M, 2, 3) d pixel / d X
             JtS = np.transpose(J, (0, 2, 1)) @ S_o
             wts = use.astype(float)
             H = _sum_by(tc, wts[:, None, None] * (JtS @ J), n)
@@ -393,7 +401,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             step = _finite(step)
             X_rows = X[rows]
             X_try = np.where(solvable[:, None], X_rows + step, X_rows)
-            p_new, r_new = residuals_of(X_try[tc], o)
+            p_new, r_new = _project(R_o, X_try[tc] - c_o, fx_o, fy_o, cx[o], cy[o], ideal[o])
             e1 = _quad2(r_new, S_o)
             use1 = use & (p_new[:, 2] > 0) & np.isfinite(e1)
             cost1 = np.bincount(tc, weights=np.where(use1, e1, 0.0), minlength=n)
@@ -403,7 +411,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             moved = o[better[tc]]
             pc_all[moved], r_all[moved] = p_new[better[tc]], r_new[better[tc]]
             # converged: the track moved by at most 1e-7 of its distance to the cameras
-            dist2 = np.bincount(tc, weights=np.sum((X_rows[tc] - centres[o]) ** 2, 1), minlength=n)
+            dist2 = np.bincount(tc, weights=np.sum((X_rows[tc] - c_o) ** 2, 1), minlength=n)
             scale = np.maximum(np.sqrt(dist2 / np.maximum(n_obs[rows], 1)), 1e-9)
             moving[rows] = better & (np.linalg.norm(step, axis=1) > 1e-7 * scale)
         if round_ == s.outlier_rounds:
