@@ -286,13 +286,15 @@ class LandmarkWindow:
     def _pose_shift_sigmas(self) -> float:
         p = self.settings.pose_prior
         sig = np.array([np.radians(p.absolute_rotation_deg)] * 3 + [p.absolute_translation_m] * 3)
+        ids = [f for f, k in self._kf.items() if k.info.T_w_c is not None]
+        if not ids:
+            return 0.0
+        # every keyframe's shift from its prior at once (one rotation conversion for all)
+        d = np.stack([invert_transform(self._kf[f].info.T_w_c) @ self.pose(f) for f in ids])
+        shift = np.concatenate([Rotation.from_matrix(d[:, :3, :3]).as_rotvec(), d[:, :3, 3]], axis=1) / sig
         worst = 0.0
-        for f, k in self._kf.items():
-            if k.info.T_w_c is None:
-                continue
-            d = invert_transform(k.info.T_w_c) @ self.pose(f)
-            rot = Rotation.from_matrix(d[:3, :3]).as_rotvec()
-            worst = max(worst, float(np.sqrt(np.mean((np.r_[rot, d[:3, 3]] / sig) ** 2))))
+        for v in np.sqrt(np.mean(shift**2, axis=1)).tolist():
+            worst = max(worst, v)
         return worst
 
     def _marginalise(self, frame_id: int) -> None:
