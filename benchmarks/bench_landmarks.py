@@ -49,8 +49,8 @@ Run: ``python benchmarks/bench_landmarks.py [--datasets 7scenes,kitti,street,roo
 Same-machine A/B against a baseline revision: ``--baseline-rev REV [--repeats N]`` runs the
 whole selection with ``REV``'s code (a temporary git worktree, this script run in a subprocess
 with that checkout's packages first on the path) and with this checkout's, alternating, ``N``
-times each, and prints one table row per run and path (points stage ms, s/fr median and mean,
-AbsRel; and CPU time: the points stage's, in its calling thread, and the whole run's, every
+times each, and prints one line per run and path (points stage ms, s/fr median and mean,
+AbsRel, frames with depth, bad ok; and CPU time: the points stage's, in its calling thread, and the whole run's, every
 thread, evaluation and writing included -- figures that other jobs on a shared machine inflate
 much less than wall time) and the landmark / two-view ratios of each run.
 """
@@ -148,11 +148,16 @@ def _mean_ms(values) -> float:
     return 1000.0 * float(np.mean(values)) if values else float("nan")
 
 
+def _bad_frames(frames: list[dict]) -> list[int]:
+    """Frames with status ok whose AbsRel exceeds 2 x their own oracle + 0.02 (``bad ok``)."""
+    return [f["frame"] for f in frames if f["status"] == "ok" and f.get("abs_rel") is not None
+            and f.get("oracle_abs_rel") is not None and f["abs_rel"] > 2 * f["oracle_abs_rel"] + 0.02]
+
+
 def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
     row = metrics["metrics"].get(PATHS[path], {})
     oracle = metrics["metrics"].get("oracle", {})
-    bad = [f["frame"] for f in frames if f["status"] == "ok" and f.get("abs_rel") is not None
-           and f.get("oracle_abs_rel") is not None and f["abs_rel"] > 2 * f["oracle_abs_rel"] + 0.02]
+    bad = _bad_frames(frames)
     ratio = row.get("abs_rel", float("nan")) / oracle.get("abs_rel", float("nan")) if oracle else float("nan")
     statuses = ", ".join(f"{k} {v}" for k, v in sorted(metrics["status_counts"].items()))
     line = (f"{path:10s} {_median(f.get('points_rel_err_median') for f in frames):7.4f} "
@@ -231,7 +236,8 @@ def summaries(args) -> list[dict]:
                             "s_mean": _mean_ms(f["seconds"] for f in frames) / 1000.0,
                             "abs_rel": metrics["metrics"].get(PATHS[path], {}).get("abs_rel", float("nan")),
                             "pts_cpu_ms": LAST_CPU["points_ms"], "run_cpu_s": LAST_CPU["run_s"],
-                            "depth": f"{metrics['frames_with_depth']}/{metrics['frames_processed']}"})
+                            "depth": f"{metrics['frames_with_depth']}/{metrics['frames_processed']}",
+                            "bad": len(_bad_frames(frames))})
     return out
 
 
@@ -262,7 +268,8 @@ def ab_main(args) -> int:
                     rows.append((side, k + 1, r))
                     print(f"  {side} run {k + 1} {r['dataset']} {r['path']}: pts {r['pts_ms']:.1f} ms (CPU "
                           f"{r['pts_cpu_ms']:.1f}), s/fr {r['s_median']:.3f} / mean {r['s_mean']:.3f}, run CPU "
-                          f"{r['run_cpu_s']:.3f} s/fr, AbsRel {r['abs_rel']:.4f}", flush=True)
+                          f"{r['run_cpu_s']:.3f} s/fr, AbsRel {r['abs_rel']:.4f}, depth {r['depth']}, "
+                          f"bad ok {r.get('bad', '-')}", flush=True)
     print("\n| dataset | code | run | two-view pts ms (CPU) | landmarks pts ms (CPU) | pts ratio (CPU) | two-view "
           "s/fr median / mean | landmarks s/fr median / mean | whole ratio median / mean | run CPU ratio "
           "| two-view AbsRel | landmarks AbsRel |")
