@@ -8,6 +8,13 @@ and writes them with :class:`vio_depth.io.asl_writer.AslWriter`: grey 8-bit PNGs
 with the velocity and the true biases (17 columns) or pose only (8 columns).
 Timestamps are shifted by ``time_offset_s`` so that they look like a real clock
 (nanoseconds since the epoch, as in EuRoC).
+
+``trajectory="loop"`` replaces the sample's trajectory (which leaves its scene after a few
+seconds) by a periodic closed loop inside it (:func:`vio_depth.simulate.generate.loop_spec`:
+the room's table walked round every 20 s), so that sequences of thousands of frames with a
+consistent IMU can be rendered (e.g. the 1 000-frame memory benchmark,
+``benchmarks/bench_stream_memory.py --poses vio``). ``depth_dir`` also saves each frame's exact
+rendered depth, from which a SIMULATED disparity can be made without rendering again.
 """
 
 from __future__ import annotations
@@ -20,11 +27,11 @@ import numpy as np
 
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
-from vio_core.errors import InputError
+from vio_core.errors import InputError, lookup
 from vio_core.geometry import invert_transform
 
 from ..io.asl_writer import AslWriter
-from .generate import camera_poses, sample_spec
+from .generate import camera_poses, loop_spec, sample_spec
 from .imu import GRAVITY_W, simulate_imu
 from .render import render_view
 from .scene_library import build_scene
@@ -35,7 +42,8 @@ ASL_TIME_OFFSET_S = 1_600_000_000
 
 def generate_asl_sample(out_dir, *, sample: str = "room", n_frames: int = 10, scale: float = 1.0,
                         gt_columns: int = 17, gt_start_s: float | None = None,
-                        time_offset_s: int = ASL_TIME_OFFSET_S, grey: bool = True, T_i_c=None) -> Path:
+                        time_offset_s: int = ASL_TIME_OFFSET_S, grey: bool = True, T_i_c=None,
+                        trajectory: str = "sample", depth_dir=None) -> Path:
     """Render ``n_frames`` frames of the bundled sample ``sample`` into an ASL folder.
 
     Args:
@@ -52,12 +60,18 @@ def generate_asl_sample(out_dir, *, sample: str = "room", n_frames: int = 10, sc
             The IMU, ground truth and images follow it; an axis-permutation rotation with
             dyadic translations keeps every transform of the loaders exact (used where two
             loaders must give bit-identical poses: tests/vio_depth/io/test_bag.py).
+        trajectory: "sample" (the bundled sample's own motion: a few seconds inside its scene)
+            or "loop" (a closed loop repeating every 20 s inside the scene, for any length up to
+            an hour; "room" only: :func:`vio_depth.simulate.generate.loop_spec`).
+        depth_dir: folder (created) that gets each frame's exact rendered z-depth, float32
+            metres (H, W) at ``scale``, as ``<image stem>.npy`` (the PNG's name: its timestamp in
+            ns); None: not saved.
 
     Returns:
         ``out_dir``. The disparity of such a sequence is not stored; the images are
         SIMULATED renderings.
     """
-    spec = sample_spec(sample)
+    spec = lookup("trajectory", trajectory, {"sample": sample_spec, "loop": loop_spec})(sample)
     if T_i_c is not None:
         spec = replace(spec, T_i_c=check_transform("T_i_c", T_i_c))
     if n_frames < 1:
@@ -85,9 +99,14 @@ def generate_asl_sample(out_dir, *, sample: str = "room", n_frames: int = 10, sc
     else:
         writer.set_ground_truth(t_imu[keep], state.T_w_i())
     T_w_c = camera_poses(spec, traj, t_frames)
+    depth_out = None if depth_dir is None else Path(depth_dir)
+    if depth_out is not None:
+        depth_out.mkdir(parents=True, exist_ok=True)
     for i, (t, T) in enumerate(zip(t_frames, T_w_c)):
         view = render_view(scene, camera, T, settings=spec.render, noise_seed=[spec.seed, 3, i])
-        writer.add_frame(float(t), view.image)
+        name = writer.add_frame(float(t), view.image)
+        if depth_out is not None:
+            np.save(depth_out / f"{Path(name).stem}.npy", view.depth.astype(np.float32))
     return writer.close()
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -149,6 +149,43 @@ def room_trajectory(seed: int) -> SinusoidTrajectory:
     return SinusoidTrajectory(position, euler, 0.0, 7.0)
 
 
+#: period of :func:`room_loop_trajectory`, seconds (every frequency in it is a multiple of 1 / period)
+ROOM_LOOP_PERIOD_S = 20.0
+#: centre (x, y) and semi-axes (along x, along y) of :func:`room_loop_trajectory`'s ellipse, metres
+ROOM_LOOP_CENTRE, ROOM_LOOP_AXES = (2.9, 2.45), (1.6, 1.15)
+
+
+def room_loop_trajectory(seed: int, duration_s: float = 3600.0) -> SinusoidTrajectory:
+    """Hand-held walk round and round the room's table, for long runs: the IMU goes
+    anticlockwise along an ellipse about (2.9, 2.45) m with semi-axes 1.6 x 1.15 m (x in
+    [1.3, 4.5], y in [1.3, 3.6] before the sway: clear of the table, sofa, cabinets and boxes) at
+    1.4 m height, about 0.43 m/s, facing the middle of the room (yaw = the position's angle
+    + 180 degrees, plus a slow pan) tilted down about 7 degrees, so it sees the table and the
+    opposite walls (depths about 1-5.5 m); the room sample's sway (0.7-0.9 Hz, 2-3 cm) and
+    hand shake (2.1-2.9 Hz, 2-3 mm).
+
+    Every frequency is a multiple of ``1 / ROOM_LOOP_PERIOD_S`` (20 s) and the yaw turns by
+    exactly 2 pi per period, so the pose, velocity, acceleration and body rate repeat exactly
+    every 20 s: the path is a closed loop that can be followed for ``duration_s`` seconds (t in
+    [0, duration_s]) with an IMU consistent with it throughout."""
+    rng = np.random.default_rng([seed, 4])
+    w = 1.0 / ROOM_LOOP_PERIOD_S  # Hz
+    (cx, cy), (ax, ay) = ROOM_LOOP_CENTRE, ROOM_LOOP_AXES
+    phase = rng.uniform(0, 2 * np.pi, (6, 2))
+    # x = cx + ax cos(2 pi w t), y = cy + ay sin(2 pi w t): the loop; then sway and shake
+    amp = np.array([[ax, 0.03, 0.003], [ay, 0.025, 0.003], [0.0, 0.02, 0.002]])
+    freq = w * np.array([[1, 14, 46], [1, 16, 42], [1, 18, 54]])
+    pos_phase = np.concatenate([np.array([[np.pi / 2], [0.0], [0.0]]), phase[:3]], axis=1)
+    position = Sinusoids(offset=[cx, cy, 1.4], rate=[0.0, 0.0, 0.0], amp=amp, freq=freq, phase=pos_phase)
+    # yaw faces the centre (angle + pi) and pans +-0.15 rad at 0.15 Hz; pitch 0.12 rad down
+    e_amp = np.array([[0.15, 0.04, 0.004], [0.04, 0.04, 0.003], [0.0, 0.02, 0.002]])
+    e_freq = w * np.array([[3, 12, 50], [2, 10, 44], [1, 14, 58]])
+    e_phase = np.concatenate([rng.uniform(0, 2 * np.pi, (3, 1)), phase[3:]], axis=1)
+    euler = Sinusoids(offset=[np.pi, 0.12, 0.0], rate=[2 * np.pi * w, 0.0, 0.0], amp=e_amp, freq=e_freq,
+                      phase=e_phase)
+    return SinusoidTrajectory(position, euler, 0.0, duration_s)
+
+
 _SPECS = {
     "street": SampleSpec(
         name="street",
@@ -191,6 +228,27 @@ def sample_spec(name: str) -> SampleSpec:
         UnknownNameError: unknown name (lists the valid ones).
     """
     return lookup("sample sequence", name, _SPECS)
+
+
+#: sample name -> (its closed-loop trajectory, description) (:func:`loop_spec`)
+_LOOPS = {
+    "room": (room_loop_trajectory,
+             "SIMULATED indoor room (rendered, not real), 6 x 5 x 3 m with furniture and posters, hand-held camera "
+             "walking round and round the table facing the middle of the room (a closed loop every 20 s, "
+             "about 2 cm per frame), 20 Hz; depths about 1-5.5 m; IMU 200 Hz (SIMULATED)."),
+}
+
+
+def loop_spec(name: str) -> SampleSpec:
+    """The bundled sample ``name`` (scene, camera, frame rate, mounting, IMU noise, seeds) with
+    a periodic closed-loop trajectory that stays inside its scene for an hour
+    (:func:`room_loop_trajectory`; only "room" has one): for long SIMULATED runs.
+
+    Raises:
+        UnknownNameError: no loop for ``name`` (lists the valid ones).
+    """
+    make, description = lookup("loop trajectory", name, _LOOPS)
+    return replace(sample_spec(name), name=f"{name}_loop", make_trajectory=make, description=description)
 
 
 def camera_poses(spec: SampleSpec, trajectory: Trajectory, t) -> np.ndarray:
