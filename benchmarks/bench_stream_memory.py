@@ -1,33 +1,46 @@
 """Memory of a long ``FrameStream`` (issue 24: "peak memory flat over 1 000 frames").
 
 A robot's depth node pushes frames for hours. This benchmark pushes ``--frames`` frames (default
-1 000) of the bundled street sample (640x256, 10 Hz, SIMULATED disparity from its ground-truth
-depth, exact rendered poses, ``--poses gt``) into one :class:`~vio_depth.FrameStream`; the 130
-frames ping-pong (0..129, 128..1, 0..) so the camera path stays continuous, with increasing
-timestamps. Every ``--every`` frames it samples this process's resident memory (``VmRSS``) and
-its peak (``VmHWM``), for each matcher (``sift``: today's default; ``klt`` with the edge guard).
+1 000) into one :class:`~vio_depth.FrameStream` per matcher (``sift``: today's default; ``klt``
+with the edge guard). Every ``--every`` frames it samples this process's resident memory
+(``VmRSS``) and its peak (``VmHWM``). ``--poses`` picks the data (comma-separated, default ``gt``):
+
+* ``gt``: the bundled street sample (640x256, 10 Hz, SIMULATED disparity from its ground-truth
+  depth, exact rendered poses); its 130 frames ping-pong (0..129, 128..1, 0..) so the camera
+  path stays continuous, with increasing timestamps.
+* ``vio``: the camera+IMU odometry on a generated ASL sequence of ``--frames`` frames: the room
+  walked round its table in a closed loop every 20 s (``generate_asl_sample(trajectory="loop")``,
+  :func:`vio_depth.simulate.generate.room_loop_trajectory`), at ``--scale`` of 512x384 (default
+  0.5: 256x192), 20 Hz, with its consistent 200 Hz IMU; SIMULATED images, IMU and disparity (an
+  affine map ``2 / depth + 0.1`` of the rendered true depth, as ``realtime_data.asl_room``).
+  Frames cannot ping-pong under an IMU (the IMU must match the motion), so the sequence is
+  rendered at full length, once, into ``--cache`` (outside the repository; 1 000 frames at
+  0.5: a few minutes). Each push carries the IMU samples since the previous one (as
+  ``bench_realtime.StreamRunner``); the odometry's states per frame (tracking / converging /
+  lost ...), the frames with depth and the pose error against the ground truth (per session,
+  positions aligned with a rigid transform) are reported.
 
 Named baseline, in the same run: **the state at frame ``--baseline``** (default 200, after the
-keyframe buffer, the rescaler's filter and the caches filled). Criterion per matcher: peak RSS
-at the end <= 1.1 x the peak at the baseline frame + 16 MiB (Linux only: ``/proc``). Exits 1
-when a criterion fails.
+keyframe buffer, the rescaler's filter and the caches filled). Criterion per row: peak RSS at
+the end <= 1.1 x the peak at the baseline frame + 16 MiB (Linux only: ``/proc``). Exits 1 when a
+criterion fails.
 
-    python benchmarks/bench_stream_memory.py                       # 1000 frames, sift and klt
+    python benchmarks/bench_stream_memory.py                       # 1000 frames, gt, sift and klt
     python benchmarks/bench_stream_memory.py --frames 300 --matchers klt
-
-The odometry (``--poses vio``) is not covered: no bundled sequence with an IMU is longer than
-120 frames, and the rendered samples' trajectories leave their scenes after a few seconds.
+    python benchmarks/bench_stream_memory.py --poses vio           # renders the loop once (minutes)
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -42,6 +55,8 @@ from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
 from vio_depth.disparity import DisparitySettings, create_disparity_source  # noqa: E402
 
 STREET = ROOT / "sample_sequences" / "street"
+DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_stream_memory"
+LOOP_MARKER = "prepared.json"
 
 
 def rss_mib() -> tuple[float, float] | None:
@@ -54,29 +69,133 @@ def rss_mib() -> tuple[float, float] | None:
         return None
 
 
-def run(matcher: str, n: int, every: int, guard: float | None) -> list[tuple[int, float, float, float]]:
-    """``[(frames pushed, RSS MiB, peak MiB, seconds so far)]`` every ``every`` frames."""
-    seq = open_sequence(STREET)
-    disparity = create_disparity_source(DisparitySettings(), seq)
-    frames = [seq[i] for i in range(len(seq))]
-    images = [f.image() for f in frames]  # 130 x 640x256x3: 64 MiB, loaded before the first sample
-    maps = [np.asarray(disparity(f), np.float32) for f in frames]
-    settings = PipelineSettings.from_presets(matcher=matcher)
-    if guard is not None:
+def pipeline_settings(matcher: str, guard: float | None, **presets) -> PipelineSettings:
+    settings = PipelineSettings.from_presets(matcher=matcher, **presets)
+    if guard is not None:  # --edge-guard: corners on depth edges are not fitted
         settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=guard))
-    stream = FrameStream(seq.camera, settings, pose_kind=seq.pose_kind)
-    order = pingpong(len(frames), n)
-    dt = 1.0 / 10.0
+    return settings
+
+
+def measure(n: int, every: int, push: Callable[[int], None]) -> list[tuple[int, float, float, float]]:
+    """``push(k)`` for k < n; ``[(frames pushed, RSS MiB, peak MiB, seconds so far)]`` every ``every`` frames."""
     out = []
     start = time.perf_counter()
-    for k, i in enumerate(order):
-        stream.push(images[i], maps[i], timestamp=k * dt, T_w_c=frames[i].T_w_c)
+    for k in range(n):
+        push(k)
         if (k + 1) % every == 0 or k + 1 == n:
             mem = rss_mib()
             out.append((k + 1, *(mem if mem is not None else (np.nan, np.nan)), time.perf_counter() - start))
     return out
 
 
+# ----------------------------------------------------------------------------- --poses gt: street ping-pong
+def street_gt(matcher: str, n: int, guard: float | None) -> Callable[[int], None]:
+    """The push of frame k of the street sample ping-ponged to ``n`` frames (``--poses gt``)."""
+    seq = open_sequence(STREET)
+    disparity = create_disparity_source(DisparitySettings(), seq)
+    frames = [seq[i] for i in range(len(seq))]
+    images = [f.image() for f in frames]  # 130 x 640x256x3: 64 MiB, loaded before the first sample
+    maps = [np.asarray(disparity(f), np.float32) for f in frames]
+    stream = FrameStream(seq.camera, pipeline_settings(matcher, guard), pose_kind=seq.pose_kind)
+    order = pingpong(len(frames), n)
+
+    def push(k: int) -> None:
+        i = order[k]
+        stream.push(images[i], maps[i], timestamp=k / 10.0, T_w_c=frames[i].T_w_c)
+
+    return push
+
+
+# ----------------------------------------------------------------------------- --poses vio: the room loop
+def prepare_loop(cache: Path, n: int, scale: float, log=print) -> Path:
+    """The room loop (SIMULATED) of ``n`` frames at ``scale`` with its true depth, rendered into
+    ``cache`` on first use (a marker file says what is there)."""
+    from vio_depth.simulate.asl import generate_asl_sample
+
+    folder = cache / f"room_loop_{n}_x{scale:g}"
+    want = {"sample": "room", "trajectory": "loop", "frames": n, "scale": scale, "layout": 1}
+    try:
+        if json.loads((folder / LOOP_MARKER).read_text()) == want:
+            return folder
+    except (OSError, ValueError):
+        pass
+    log(f"# rendering the room loop ({n} frames at x{scale:g}) into {folder} (once; minutes)")
+    start = time.perf_counter()
+    generate_asl_sample(folder, sample="room", n_frames=n, scale=scale, trajectory="loop", depth_dir=folder / "depth")
+    (folder / LOOP_MARKER).write_text(json.dumps(want))
+    log(f"# rendered in {time.perf_counter() - start:.0f} s")
+    return folder
+
+
+class LoopVio:
+    """Pushes frame k of the rendered room loop with the IMU samples since the previous push
+    (``--poses vio``) and keeps what the odometry said: per frame its state, whether the frame
+    got depth, and its position when posed (a few numbers a frame)."""
+
+    def __init__(self, folder: Path, matcher: str, guard: float | None):
+        self.folder = folder
+        self.seq = open_sequence(folder)
+        self.frames = [self.seq[i] for i in range(len(self.seq))]
+        self.imu = self.seq.imu
+        self.stream = FrameStream(self.seq.camera, pipeline_settings(matcher, guard, poses="vio", pairing="indoor"),
+                                  imu_calibration=self.imu, pose_kind=self.seq.pose_kind)
+        self.imu_done = -np.inf
+        n = len(self.frames)
+        self.status = np.full(n, "", dtype=object)
+        self.has_depth = np.zeros(n, bool)
+        self.position = np.full((n, 3), np.nan)
+        self.frame_status: dict[str, int] = {}
+
+    def __call__(self, k: int) -> None:
+        frame = self.frames[k]
+        depth = np.load(self.folder / "depth" / f"{frame.stem}.npy")
+        disparity = np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0).astype(np.float32)  # SIMULATED
+        t = frame.timestamp
+        new = (self.imu.t > self.imu_done) & (self.imu.t <= t)
+        self.imu_done = t
+        result = self.stream.push(frame.image(), disparity, timestamp=t,
+                                  imu=(self.imu.t[new], self.imu.gyro[new], self.imu.accel[new]))
+        pose = result.frame_pose
+        self.status[k] = "none" if pose is None or pose.status is None else pose.status.value
+        self.has_depth[k] = result.has_depth
+        self.frame_status[result.status.value] = self.frame_status.get(result.status.value, 0) + 1
+        if pose is not None and pose.ok and pose.T_w_c is not None:
+            self.position[k] = pose.T_w_c[:3, 3]
+
+    def report(self, n: int) -> list[str]:
+        """Lines: states per frame (run-length), frames with depth, pose error per session."""
+        from vio_depth.evaluation import umeyama_alignment
+
+        status = self.status[:n]
+        names, counts = np.unique(status, return_counts=True)
+        lines = ["odometry states over the run: " + ", ".join(f"{a} {b}" for a, b in zip(names, counts))
+                 + f"; frames with depth: {int(self.has_depth[:n].sum())}/{n} (frame statuses: "
+                 + ", ".join(f"{a} {b}" for a, b in sorted(self.frame_status.items(), key=lambda x: -x[1])) + ")"]
+        runs, first = [], 0
+        for k in range(1, n + 1):
+            if k == n or status[k] != status[first]:
+                runs.append(f"{status[first]} {first}-{k - 1}")
+                first = k
+        lines.append("state runs (frames): " + ", ".join(runs[:40]) + (" ..." if len(runs) > 40 else ""))
+        # a session starts at a frame posed after one that was not initialised (initialising / lost)
+        truth = np.stack([f.T_w_c[:3, 3] for f in self.frames[:n]])
+        unposed = np.isin(status, ["initialising", "lost", "none"])
+        session = np.cumsum(np.r_[True, unposed[:-1]] & ~unposed) * ~unposed
+        for s in np.unique(session[session > 0]):
+            idx = np.flatnonzero((session == s) & np.isfinite(self.position[:n, 0]))
+            if len(idx) < 3:
+                continue
+            R, tr, _ = umeyama_alignment(self.position[idx], truth[idx])
+            err = np.linalg.norm(self.position[idx] @ R.T + tr - truth[idx], axis=1)
+            last = err[idx >= idx[-1] - 99]
+            lines.append(f"session {s}: frames {idx[0]}-{idx[-1]}, {len(idx)} posed online; position error after a "
+                         f"rigid alignment: RMSE {np.sqrt(np.mean(err ** 2)) * 100:.1f} cm, max "
+                         f"{err.max() * 100:.1f} cm, last 100 frames RMSE {np.sqrt(np.mean(last ** 2)) * 100:.1f} cm; "
+                         f"path {np.linalg.norm(np.diff(truth[idx], axis=0), axis=1).sum():.1f} m")
+        return lines
+
+
+# ----------------------------------------------------------------------------- main
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000)
@@ -84,32 +203,51 @@ def main(argv=None) -> int:
     parser.add_argument("--baseline", type=int, default=200, help="the frame whose peak is the baseline")
     parser.add_argument("--matchers", default="sift,klt")
     parser.add_argument("--klt-edge-guard", type=float, default=0.1)
+    parser.add_argument("--poses", default="gt", help="comma-separated: gt (street ping-pong), vio (the room loop)")
+    parser.add_argument("--scale", type=float, default=0.5, help="image size factor of the room loop (vio)")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="where the room loop is rendered (vio)")
     args = parser.parse_args(argv)
-    if not (STREET / "sequence.json").exists():
-        print("bundled street sample missing: nothing measured")
-        return 0
+    poses = [p for p in args.poses.split(",") if p]
+    if not poses or not set(poses) <= {"gt", "vio"}:
+        parser.error(f"unknown --poses {args.poses!r} (valid: gt, vio)")
     if args.baseline % args.every or not args.every <= args.baseline < args.frames:
         parser.error("--baseline must be a multiple of --every and below --frames")
     print(f"# machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
-          f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start")
-    print(f"# street sample ping-ponged to {args.frames} frames, --poses gt, FrameStream; SIMULATED disparity")
+          f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start; "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}", flush=True)
     failed = False
-    for matcher in [m for m in args.matchers.split(",") if m]:
-        guard = args.klt_edge_guard if matcher == "klt" else None
-        # each matcher in a fresh process would isolate the peaks; one process keeps it simple:
-        # the peak (VmHWM) is reset before each matcher where Linux allows it
-        reset_peak_rss()
-        rows = run(matcher, args.frames, args.every, guard)
-        label = matcher if guard is None else f"{matcher}, guard {guard:g}"
-        print(f"\n## {label}\n\n| frames | RSS MiB | peak MiB | seconds |\n|---|---|---|---|")
-        for k, rss, peak, sec in rows:
-            print(f"| {k} | {rss:.0f} | {peak:.0f} | {sec:.0f} |")
-        base = next(p for k, _, p, _ in rows if k == args.baseline)
-        end = rows[-1][2]
-        ok = end <= 1.1 * base + 16
-        failed |= not ok
-        print(f"\npeak at frame {rows[-1][0]}: {end:.0f} MiB; at frame {args.baseline} (baseline): {base:.0f} MiB; "
-              f"limit 1.1 x baseline + 16 = {1.1 * base + 16:.0f}: **{'PASS' if ok else 'FAIL'}**")
+    for pose in poses:
+        if pose == "gt":
+            if not (STREET / "sequence.json").exists():
+                print("bundled street sample missing: --poses gt not measured")
+                continue
+            print(f"# street sample ping-ponged to {args.frames} frames, --poses gt, FrameStream; SIMULATED disparity")
+        else:
+            folder = prepare_loop(args.cache, args.frames, args.scale, log=lambda m: print(m, flush=True))
+            print(f"# room loop, {args.frames} frames at x{args.scale:g}, 20 Hz, --poses vio --pairing indoor, "
+                  "FrameStream; SIMULATED images, 200 Hz IMU and disparity (2 / true depth + 0.1)", flush=True)
+        for matcher in [m for m in args.matchers.split(",") if m]:
+            guard = args.klt_edge_guard if matcher == "klt" else None
+            # each row in a fresh process would isolate the peaks; one process keeps it simple:
+            # the peak (VmHWM) is reset before each row where Linux allows it
+            reset_peak_rss()
+            push = street_gt(matcher, args.frames, guard) if pose == "gt" else LoopVio(folder, matcher, guard)
+            rows = measure(args.frames, args.every, push)
+            label = f"--poses {pose}, {matcher}" + ("" if guard is None else f", guard {guard:g}")
+            print(f"\n## {label}\n\n| frames | RSS MiB | peak MiB | seconds |\n|---|---|---|---|")
+            for k, rss, peak, sec in rows:
+                print(f"| {k} | {rss:.0f} | {peak:.0f} | {sec:.0f} |")
+            base = next(p for k, _, p, _ in rows if k == args.baseline)
+            end = rows[-1][2]
+            ok = end <= 1.1 * base + 16
+            failed |= not ok
+            print(f"\npeak at frame {rows[-1][0]}: {end:.0f} MiB; at frame {args.baseline} (baseline): {base:.0f} MiB; "
+                  f"limit 1.1 x baseline + 16 = {1.1 * base + 16:.0f}: **{'PASS' if ok else 'FAIL'}**")
+            if isinstance(push, LoopVio):
+                for line in push.report(args.frames):
+                    print(f"- {line}")
+            sys.stdout.flush()
+            del push
     return 1 if failed else 0
 
 
