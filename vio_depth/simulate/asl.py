@@ -9,12 +9,13 @@ with the velocity and the true biases (17 columns) or pose only (8 columns).
 Timestamps are shifted by ``time_offset_s`` so that they look like a real clock
 (nanoseconds since the epoch, as in EuRoC).
 
-``trajectory="loop"`` replaces the sample's trajectory (which leaves its scene after a few
-seconds) by a periodic closed loop inside it (:func:`vio_depth.simulate.generate.loop_spec`:
-the room's table walked round every 20 s), so that sequences of thousands of frames with a
-consistent IMU can be rendered (e.g. the 1 000-frame memory benchmark,
-``benchmarks/bench_stream_memory.py --poses vio``). ``depth_dir`` also saves each frame's exact
-rendered depth, from which a SIMULATED disparity can be made without rendering again.
+``trajectory="loop"`` replaces the sample's trajectory (defined for a few seconds only: 7 s
+for the room, 14.5 s for the street) by a periodic closed loop inside the scene
+(:func:`vio_depth.simulate.generate.loop_spec`: the room's table walked round every 20 s), so
+that sequences of thousands of frames with a consistent IMU can be rendered (e.g. the
+1 000-frame memory benchmark, ``benchmarks/bench_stream_memory.py --poses vio``). ``depth_dir``
+also saves each frame's exact rendered depth, from which a SIMULATED disparity can be made
+without rendering again.
 """
 
 from __future__ import annotations
