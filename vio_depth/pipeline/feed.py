@@ -31,31 +31,44 @@ def _image_not_kept() -> np.ndarray:
 
 
 class StreamInputs:
-    """The frames and IMU samples pushed to a stream so far (what a sequence gives a pose source).
+    """The frames and IMU samples pushed to a stream (what a sequence gives a pose source).
+
+    A long stream keeps only what its pose source reads again: :meth:`forget_before` drops
+    the frames and the samples before a time (the stream asks its source how far back it
+    reads: :meth:`LazyImuPoses.samples_needed_since`). Without that, a stream at 20 Hz with
+    a 200 Hz IMU grew by about 1.5 KiB a frame, and re-joined every sample at each push.
 
     Args:
         pose_kind: what the pushed ``T_w_c`` are (a
             :data:`~vio_depth.poses.POSE_UNCERTAINTY_PRESETS` name), for the ``gt`` source.
         imu_calibration: an :class:`~vio_depth.frame.ImuData` whose ``T_c_i``, noise densities
-            and gravity the pushed samples get (its own samples are ignored), or None.
+            and gravity the pushed samples get (its own samples are ignored), or None (the
+            pushed samples are then not kept: nothing could read them).
     """
+
+    #: samples kept before the time given to :meth:`forget_before` (a window's interpolation and
+    #: ``ImuFactors.samples_between`` read up to two beyond an interval's ends)
+    SAMPLES_BEFORE = 4
 
     def __init__(self, pose_kind: str = "exact", imu_calibration: ImuData | None = None):
         self.pose_kind = pose_kind
         self.imu_calibration = imu_calibration
-        #: the frames pushed so far, in order, without their pixels (:meth:`add_frame`)
+        #: the frames kept, in order, without their pixels (:meth:`add_frame`); the first is
+        #: pushed frame number ``first``
         self.frames: list[Frame] = []
-        #: the samples pushed so far with the calibration; None before the first ones or without calibration
+        self.first = 0
+        #: the samples kept with the calibration; None before the first ones or without calibration
         self.imu: ImuData | None = None
-        self._t: list[np.ndarray] = []
-        self._gyro: list[np.ndarray] = []
-        self._accel: list[np.ndarray] = []
 
     def __len__(self) -> int:
-        return len(self.frames)
+        """Frames pushed so far (kept or forgotten)."""
+        return self.first + len(self.frames)
 
     def __getitem__(self, index: int) -> Frame:
-        return self.frames[index]
+        """Pushed frame number ``index``. Raises IndexError for a forgotten or future one."""
+        if not 0 <= index - self.first < len(self.frames):
+            raise IndexError(f"stream frame {index} is not kept (frames {self.first}-{len(self) - 1} are)")
+        return self.frames[index - self.first]
 
     def add_frame(self, frame: Frame) -> None:
         """Append ``frame``, keeping its index, timestamp and pose only: a pose source reads
@@ -72,17 +85,30 @@ class StreamInputs:
         t = check_array("imu t", t, (None,), finite=True)
         gyro = check_array("imu gyro", gyro, (len(t), 3), finite=True)
         accel = check_array("imu accel", accel, (len(t), 3), finite=True)
-        if len(t) == 0:
-            return
-        self._t.append(t)
-        self._gyro.append(gyro)
-        self._accel.append(accel)
         cal = self.imu_calibration
-        if cal is None:
+        if len(t) == 0 or cal is None:
             return
-        self.imu = ImuData(np.concatenate(self._t), np.concatenate(self._gyro), np.concatenate(self._accel),
-                           cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk, cal.accel_bias_walk,
-                           cal.gravity_w)
+        old = self.imu
+        if old is not None:
+            t, gyro, accel = (np.concatenate([old.t, t]), np.concatenate([old.gyro, gyro]),
+                              np.concatenate([old.accel, accel]))
+        self.imu = ImuData(t, gyro, accel, cal.T_c_i, cal.gyro_noise, cal.accel_noise, cal.gyro_bias_walk,
+                           cal.accel_bias_walk, cal.gravity_w)
+
+    def forget_before(self, t: float) -> None:
+        """Drop the frames before ``t`` seconds and the samples before it but the last
+        :attr:`SAMPLES_BEFORE` (what the pose source will not read again)."""
+        drop = 0
+        while drop < len(self.frames) and self.frames[drop].timestamp < t:
+            drop += 1
+        if drop:
+            del self.frames[:drop]
+            self.first += drop
+        imu = self.imu
+        if imu is not None:
+            i0 = int(np.searchsorted(imu.t, t, "left")) - self.SAMPLES_BEFORE
+            if i0 > 0:  # copies: a view would keep the whole array alive
+                self.imu = replace(imu, t=imu.t[i0:].copy(), gyro=imu.gyro[i0:].copy(), accel=imu.accel[i0:].copy())
 
 
 class LazyImuPoses:
@@ -120,6 +146,13 @@ class LazyImuPoses:
                 self.source.update_samples(imu)
             self._seen = imu
         return self.source
+
+    def samples_needed_since(self) -> float | None:
+        """Seconds before which the source reads no frame or IMU sample of the stream again,
+        or None when it may read any (the ``imu`` source: its static start reads the first
+        samples; its bias fit, past frames' poses)."""
+        needed = getattr(self.source, "samples_needed_since", None)
+        return None if needed is None else needed()
 
     def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
         source = self._current()

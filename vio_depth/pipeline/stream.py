@@ -33,7 +33,7 @@ from vio_core.errors import CorruptImageError, InputError
 from ..disparity import DisparityKind, check_disparity
 from ..frame import Frame, ImuData
 from .build import build_matcher, build_pose_stage
-from .feed import StreamInputs
+from .feed import LazyImuPoses, StreamInputs
 from .pipeline import Pipeline
 from .result import FrameResult
 from .settings import PipelineSettings
@@ -91,6 +91,7 @@ class FrameStream:
         matcher = build_matcher(settings)
         poses = build_pose_stage(settings.poses, matcher=matcher, stream=self._inputs)
         self.pipeline = Pipeline(settings, poses, self._disparity, matcher=matcher, imu_of=lambda: self._inputs.imu)
+        self._pose_source = poses.source
         if isinstance(prefetch, bool) or not isinstance(prefetch, int) or prefetch < 0:
             raise InputError(f"prefetch must be an integer >= 0, got {prefetch!r}")
         concurrent = getattr(matcher, "concurrent_extract", False) is True  # as the CLI run decides
@@ -200,9 +201,21 @@ class FrameStream:
         try:
             extracted, seconds = (None, 0.0) if features is None else features.result()
             if extracted is None:
-                return self.pipeline.process(frame)
-            prepared = self.pipeline.prepare(frame, extracted)
-            prepared.timings.update(image=0.0, features=seconds)
-            return self.pipeline.process_prepared(prepared)
+                result = self.pipeline.process(frame)
+            else:
+                prepared = self.pipeline.prepare(frame, extracted)
+                prepared.timings.update(image=0.0, features=seconds)
+                result = self.pipeline.process_prepared(prepared)
         finally:
             self._disparity.current = None
+        self._forget(t)
+        return result
+
+    def _forget(self, t: float) -> None:
+        """Drop the past frames and IMU samples that nothing reads again (a long stream's memory
+        stays flat): the ``imu`` / ``vio`` source says how far back it reads; with the other
+        sources only a tracking matcher's rotation reads samples, from the frame at ``t`` on."""
+        source = self._pose_source
+        since = source.samples_needed_since() if isinstance(source, LazyImuPoses) else t
+        if since is not None:
+            self._inputs.forget_before(since)

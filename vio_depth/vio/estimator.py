@@ -162,9 +162,30 @@ class VioEstimator:
         return self.factors.imu
 
     def update_samples(self, imu: ImuData) -> None:
-        """Use ``imu`` (the samples so far plus newer ones) from now on (streaming input)."""
+        """Use ``imu`` (the samples so far plus newer ones; streaming input) from now on.
+        Samples before :meth:`samples_needed_since` may be left out."""
         self.factors.update_samples(imu)
         self.initializer.update_samples(imu)
+
+    def samples_needed_since(self) -> float | None:
+        """Seconds before which the odometry reads no IMU sample again, or None before the first
+        frame: the oldest of the window's keyframes (its factors, bridges and predictions start
+        there), the rest anchor, the initialisation's candidates and the lookbacks of the
+        static start and the rest test from the newest frame. A stream forgets older samples
+        (:class:`~vio_depth.pipeline.feed.StreamInputs`); without that they grow by the IMU
+        rate for as long as it runs."""
+        if self._last_id is None:
+            return None
+        s = self.settings
+        t = self._times[self._last_id]
+        times = [t - max(s.init.lookback_s, s.rest.gyro_bias_window_s, s.rest.min_imu_s)]
+        if self.tracking:
+            times += [self._times[f] for f in self.landmarks.window.keyframe_ids if f in self._times]
+        else:
+            times += self.initializer.candidate_times()
+        if self.rest.anchor is not None:
+            times.append(self.rest.anchor.t)
+        return min(times)
 
     @property
     def tracking(self) -> bool:

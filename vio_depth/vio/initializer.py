@@ -119,6 +119,10 @@ class Initializer:
     def update_samples(self, imu: ImuData) -> None:
         self.imu = imu
 
+    def candidate_times(self) -> list[float]:
+        """Seconds of the candidate keyframes waiting (their IMU is read at the next alignment)."""
+        return [c.t for c in self._w.candidates]
+
     # ------------------------------------------------------------------ helpers
     def _rotation_free_parallax(self, cur: Candidate, prev: Candidate, m) -> float:
         """Median pixel motion of the matches after removing the gyroscope's rotation."""

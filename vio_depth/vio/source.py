@@ -67,6 +67,10 @@ class VioPoseSource:
         """Use ``imu`` (the samples so far plus newer ones) from now on (streaming input)."""
         self.estimator.update_samples(imu)
 
+    def samples_needed_since(self) -> float | None:
+        """Seconds before which no IMU sample is read again (:meth:`VioEstimator.samples_needed_since`)."""
+        return self.estimator.samples_needed_since()
+
     def track(self, frame: Frame, features: Features) -> FramePose:
         """Estimate the pose of the next frame; a frame seen before gets its current pose."""
         if self._last is not None and frame.index <= self._last:

@@ -1,5 +1,6 @@
 """FrameStream: pushing arrays gives exactly what the pipeline gives on the same frames."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +189,71 @@ def test_submitted_frames_with_imu_samples_give_what_pushed_frames_give():
     for a, b in zip(expected, got):
         _same_result(a, b)
         assert (a.rescale is None) == (b.rescale is None)
+
+
+def _room_vio_pushes(n: int):
+    """The first ``n`` frames of the room sample as pushes with the IMU samples since the
+    previous push (SIMULATED images, IMU and true inverse depth as the disparity)."""
+    seq = open_sequence(ROOM)
+    imu = seq.imu
+    pushes, t_prev = [], -np.inf
+    for i in range(n):
+        frame = seq[i]
+        new = (imu.t > t_prev) & (imu.t <= frame.timestamp)
+        t_prev = frame.timestamp
+        depth = frame.gt_depth()
+        pushes.append((frame.image(), np.where(depth > 0, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32),
+                       dict(timestamp=frame.timestamp, imu=(imu.t[new], imu.gyro[new], imu.accel[new]))))
+    return seq, pushes
+
+
+@pytest.mark.parametrize("matcher", ["klt"])
+def test_a_long_vio_stream_forgets_the_samples_and_frames_the_odometry_no_longer_reads(matcher, monkeypatch):
+    """Memory of a ``--poses vio`` stream is flat in the number of pushes: before, the stream
+    kept every pushed IMU sample (twice: the pushed chunks and their join, re-joined at each
+    push) and every frame's record, 1.5 KiB a frame at 20 Hz with a 200 Hz IMU
+    (benchmarks/bench_stream_memory.py --poses vio). Forgetting what the odometry no longer
+    reads changes no result, bit for bit."""
+    seq, pushes = _room_vio_pushes(120)
+    settings = PipelineSettings.from_presets(matcher=matcher, poses="vio", pairing="indoor", points="vio")
+
+    def run():
+        stream = FrameStream(seq.camera, settings, imu_calibration=seq.imu)
+        return stream, [stream.push(img, d, **kw) for img, d, kw in pushes]
+
+    stream, got = run()
+    kept = stream._inputs
+    t_end = pushes[-1][2]["timestamp"]
+    assert len(kept) == 120 and kept[119].timestamp == t_end
+    assert kept.imu.t[0] > t_end - 4.0 and len(kept.frames) < 80, (kept.imu.t[0], len(kept.frames))
+    with pytest.raises(IndexError, match="not kept"):
+        kept[0]
+    assert sum(r.depth is not None for r in got) >= 60  # the odometry tracked: the test means something
+
+    monkeypatch.setattr(StreamInputs, "forget_before", lambda self, t: None)  # the stream as it was
+    full, expected = run()
+    assert full._inputs.imu.t[0] == seq.imu.t[0]
+    for a, b in zip(expected, got):
+        _same_result(a, b)
+        assert (a.frame_pose is None) == (b.frame_pose is None)
+        if a.frame_pose is not None and a.frame_pose.T_w_c is not None:
+            np.testing.assert_array_equal(a.frame_pose.T_w_c, b.frame_pose.T_w_c)
+
+
+def test_stream_inputs_forget_frames_and_samples_before_a_time():
+    seq = open_sequence(ROOM)
+    inputs = StreamInputs("exact", seq.imu)
+    inputs.add_imu(np.array([0.0, 0.1]), np.zeros((2, 3)), np.zeros((2, 3)))
+    inputs.add_imu(np.arange(2, 10) / 10.0, np.ones((8, 3)), np.ones((8, 3)))
+    np.testing.assert_allclose(inputs.imu.t, np.arange(10) / 10.0)
+    for i in range(5):
+        inputs.add_frame(replace(seq[0], index=i, timestamp=i / 4.0))
+    inputs.forget_before(0.6)
+    np.testing.assert_allclose(inputs.imu.t, np.arange(2, 10) / 10.0)  # 4 samples before 0.6 kept
+    assert inputs.imu.gyro.base is None  # a copy: the forgotten samples are freed
+    assert len(inputs) == 5 and inputs.first == 3 and inputs[3].timestamp == 0.75
+    with pytest.raises(IndexError):
+        inputs[2]
+    uncalibrated = StreamInputs()
+    uncalibrated.add_imu(np.array([0.0]), np.zeros((1, 3)), np.zeros((1, 3)))
+    assert uncalibrated.imu is None  # nothing could read them: not kept
