@@ -20,14 +20,26 @@ with the edge guard). Every ``--every`` frames it samples this process's residen
   lost ...), the frames with depth and the pose error against the ground truth (per session,
   positions aligned with a rigid transform) are reported.
 
+  ``--points vio`` fits the odometry's own landmarks; ``--backends inline,process:6`` runs a
+  row per landmark-window backend (``VioSettings.backend``): with ``process`` the worker
+  process's ``VmRSS`` / ``VmHWM`` are sampled too (``/proc/<pid>/status`` of this process's
+  children). ``--history-frames`` sets ``VioSettings.history_frames`` (the odometry's pose
+  history, bounded by it: the part of a vio row's memory that still grows until that many
+  frames passed).
+
 Named baseline, in the same run: **the state at frame ``--baseline``** (default 200, after the
 keyframe buffer, the rescaler's filter and the caches filled). Criterion per row: peak RSS at
-the end <= 1.1 x the peak at the baseline frame + 16 MiB (Linux only: ``/proc``). Exits 1 when a
-criterion fails.
+the end (plus the worker's peak) <= 1.1 x the same at the baseline frame + 16 MiB (Linux only:
+``/proc``). Exits 1 when a criterion fails. Each row also prints the least-squares slope of the
+second half (KiB per frame). ``--tracemalloc A,B`` traces Python's allocations (about 30 x
+slower; this process only, not a worker) and lists the allocation sites that grew most
+between frames A and B.
 
-    python benchmarks/bench_stream_memory.py                       # 1000 frames, gt, sift and klt
+    python benchmarks/bench_stream_memory.py                       # 1000 frames, gt, sift and klt (minutes)
     python benchmarks/bench_stream_memory.py --frames 300 --matchers klt
-    python benchmarks/bench_stream_memory.py --poses vio           # renders the loop once (minutes)
+    python benchmarks/bench_stream_memory.py --poses vio --matchers klt --points vio \
+        --backends inline,process:6                                # renders the loop once (minutes)
+    python benchmarks/bench_stream_memory.py --poses vio --matchers klt --points vio --tracemalloc 300,900
 """
 
 from __future__ import annotations
@@ -38,9 +50,10 @@ import os
 import platform
 import sys
 import time
+import tracemalloc
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -52,40 +65,122 @@ from bench_realtime import reset_peak_rss  # noqa: E402
 from throughput_data import pingpong  # noqa: E402
 
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
+from vio_core.errors import VioDepthError  # noqa: E402
 from vio_depth.disparity import DisparitySettings, create_disparity_source  # noqa: E402
+from vio_depth.landmarks.settings import WindowBackendSettings  # noqa: E402
 
 STREET = ROOT / "sample_sequences" / "street"
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_stream_memory"
 LOOP_MARKER = "prepared.json"
 
 
-def rss_mib() -> tuple[float, float] | None:
-    """(VmRSS, VmHWM) of this process in MiB, or None off Linux."""
+def rss_mib(pid: int | str = "self") -> tuple[float, float] | None:
+    """(VmRSS, VmHWM) of process ``pid`` (default this one) in MiB, or None off Linux or when gone."""
     try:
-        with open("/proc/self/status") as f:
+        with open(f"/proc/{pid}/status") as f:
             fields = {ln.split(":")[0]: int(ln.split()[1]) for ln in f if ln.startswith(("VmRSS:", "VmHWM:"))}
         return fields["VmRSS"] / 1024, fields["VmHWM"] / 1024
     except (OSError, KeyError, ValueError):
         return None
 
 
-def pipeline_settings(matcher: str, guard: float | None, **presets) -> PipelineSettings:
+def child_pids() -> list[int]:
+    """This process's live children (the landmark window's worker with ``--backend process``; Linux)."""
+    me = os.getpid()
+    try:
+        with open(f"/proc/{me}/task/{me}/children") as f:
+            return [int(p) for p in f.read().split()]
+    except (OSError, ValueError):
+        return []
+
+
+def workers_mib() -> tuple[float, float]:
+    """(sum of VmRSS, sum of VmHWM) over this process's children in MiB (0, 0 with none)."""
+    mems = [m for m in map(rss_mib, child_pids()) if m is not None]
+    return sum(m[0] for m in mems), sum(m[1] for m in mems)
+
+
+def pipeline_settings(matcher: str, guard: float | None, backend: WindowBackendSettings | None = None,
+                      history_frames: int | None = None, **presets) -> PipelineSettings:
     settings = PipelineSettings.from_presets(matcher=matcher, **presets)
     if guard is not None:  # --edge-guard: corners on depth edges are not fitted
         settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=guard))
+    if backend is not None:  # --backend process:LAG: the landmark window in a worker
+        settings = replace(settings, poses=replace(settings.poses, backend=backend))
+    if history_frames is not None:  # --history-frames: the odometry's pose history bound
+        settings = replace(settings, poses=replace(settings.poses, history_frames=history_frames))
     return settings
 
 
-def measure(n: int, every: int, push: Callable[[int], None]) -> list[tuple[int, float, float, float]]:
-    """``push(k)`` for k < n; ``[(frames pushed, RSS MiB, peak MiB, seconds so far)]`` every ``every`` frames."""
+def parse_backend(text: str) -> WindowBackendSettings:
+    """``inline`` or ``process[:LAG]`` (argparse type)."""
+    kind, _, lag = text.partition(":")
+    try:
+        return WindowBackendSettings(kind, int(lag)) if lag else WindowBackendSettings(kind)
+    except (VioDepthError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(f"--backend {text!r}: {exc} (inline, process or process:LAG)") from None
+
+
+class Sample(NamedTuple):
+    """One checkpoint: frames pushed, this process's RSS / peak and its children's (MiB), the
+    Python heap tracemalloc traces (MiB, NaN when off) and the seconds so far."""
+
+    frames: int
+    rss: float
+    peak: float
+    worker_rss: float
+    worker_peak: float
+    traced: float
+    seconds: float
+
+
+def measure(n: int, every: int, push: Callable[[int], None],
+            snapshots: dict[int, "tracemalloc.Snapshot"] | None = None) -> list[Sample]:
+    """``push(k)`` for k < n, a :class:`Sample` every ``every`` frames. With ``snapshots`` (keys:
+    frame counts) tracemalloc runs and its snapshot after each of those frames is stored there."""
     out = []
+    if snapshots is not None:
+        tracemalloc.start(16)
     start = time.perf_counter()
-    for k in range(n):
-        push(k)
-        if (k + 1) % every == 0 or k + 1 == n:
-            mem = rss_mib()
-            out.append((k + 1, *(mem if mem is not None else (np.nan, np.nan)), time.perf_counter() - start))
+    try:
+        for k in range(n):
+            push(k)
+            if snapshots is not None and k + 1 in snapshots:
+                snapshots[k + 1] = tracemalloc.take_snapshot()
+            if (k + 1) % every == 0 or k + 1 == n:
+                mem = rss_mib() or (np.nan, np.nan)
+                traced = tracemalloc.get_traced_memory()[0] / 2 ** 20 if snapshots is not None else np.nan
+                out.append(Sample(k + 1, *mem, *workers_mib(), traced, time.perf_counter() - start))
+    finally:
+        if snapshots is not None:
+            tracemalloc.stop()
     return out
+
+
+def second_half_slope(rows: list[Sample], field: str) -> float:
+    """KiB per frame of ``field`` over the second half of the run (least squares over its checkpoints)."""
+    half = [r for r in rows if r.frames >= rows[-1].frames / 2]
+    if len(half) < 2:
+        return np.nan
+    x = np.array([r.frames for r in half], float)
+    return float(np.polyfit(x, np.array([getattr(r, field) for r in half], float), 1)[0] * 1024)
+
+
+def snapshot_diff(a: "tracemalloc.Snapshot", b: "tracemalloc.Snapshot", frames: int, top: int = 12) -> list[str]:
+    """The ``top`` allocation sites that grew most from snapshot ``a`` to ``b`` (``frames`` apart),
+    each with its growth per frame and its innermost package frame."""
+    keep = [tracemalloc.Filter(False, tracemalloc.__file__),
+            tracemalloc.Filter(False, "<frozen importlib._bootstrap*>")]
+    stats = b.filter_traces(keep).compare_to(a.filter_traces(keep), "traceback")
+    total = sum(s.size_diff for s in stats)
+    lines = [f"tracemalloc growth over {frames} frames: {total / 2 ** 20:+.2f} MiB ({total / frames / 1024:+.2f} KiB "
+             "per frame); the sites that grew most:"]
+    for s in sorted(stats, key=lambda s: -s.size_diff)[:top]:
+        ours = [f for f in s.traceback if "vio_depth" in f.filename or "vio_core" in f.filename] or list(s.traceback)
+        where = " <- ".join(f"{Path(f.filename).name}:{f.lineno}" for f in ours[-3:][::-1])
+        lines.append(f"{s.size_diff / 1024:+9.1f} KiB ({s.count_diff:+d} blocks, "
+                     f"{s.size_diff / frames:+.0f} B/frame) {where}")
+    return lines
 
 
 # ----------------------------------------------------------------------------- --poses gt: street ping-pong
@@ -132,13 +227,15 @@ class LoopVio:
     (``--poses vio``) and keeps what the odometry said: per frame its state, whether the frame
     got depth, and its position when posed (a few numbers a frame)."""
 
-    def __init__(self, folder: Path, matcher: str, guard: float | None):
+    def __init__(self, folder: Path, matcher: str, guard: float | None, points: str | None = None,
+                 backend: WindowBackendSettings | None = None, history_frames: int | None = None):
         self.folder = folder
         self.seq = open_sequence(folder)
         self.frames = [self.seq[i] for i in range(len(self.seq))]
         self.imu = self.seq.imu
-        self.stream = FrameStream(self.seq.camera, pipeline_settings(matcher, guard, poses="vio", pairing="indoor"),
-                                  imu_calibration=self.imu, pose_kind=self.seq.pose_kind)
+        settings = pipeline_settings(matcher, guard, backend, history_frames, poses="vio", pairing="indoor",
+                                     points=points)
+        self.stream = FrameStream(self.seq.camera, settings, imu_calibration=self.imu, pose_kind=self.seq.pose_kind)
         self.imu_done = -np.inf
         n = len(self.frames)
         self.status = np.full(n, "", dtype=object)
@@ -196,6 +293,29 @@ class LoopVio:
 
 
 # ----------------------------------------------------------------------------- main
+def print_row(label: str, rows: list[Sample], baseline: int, worker: bool, traced: bool) -> bool:
+    """The row's table, its second-half slopes and its criterion; True when it passes."""
+    cols = ["frames", "RSS MiB", "peak MiB"] + ["worker RSS MiB", "worker peak MiB"] * worker \
+        + ["traced MiB"] * traced + ["seconds"]
+    print(f"\n## {label}\n\n| {' | '.join(cols)} |\n|{'---|' * len(cols)}")
+    for r in rows:
+        cells = [f"{r.frames}", f"{r.rss:.0f}", f"{r.peak:.0f}"] \
+            + [f"{r.worker_rss:.0f}", f"{r.worker_peak:.0f}"] * worker + [f"{r.traced:.1f}"] * traced \
+            + [f"{r.seconds:.0f}"]
+        print(f"| {' | '.join(cells)} |")
+    slopes = [("RSS", "rss")] + [("worker RSS", "worker_rss")] * worker + [("traced", "traced")] * traced
+    print("\nsecond half (frames >= " + f"{rows[-1].frames // 2}), least-squares slope: "
+          + ", ".join(f"{name} {second_half_slope(rows, field):+.1f} KiB/frame" for name, field in slopes))
+    # the criterion counts the worker too: its peak plus ours bounds the pair's peak from above
+    base_row = next(r for r in rows if r.frames == baseline)
+    base, end = base_row.peak + base_row.worker_peak, rows[-1].peak + rows[-1].worker_peak
+    ok = end <= 1.1 * base + 16
+    what = "peak (+ worker peak)" if worker else "peak"
+    print(f"{what} at frame {rows[-1].frames}: {end:.0f} MiB; at frame {baseline} (baseline): {base:.0f} MiB; "
+          f"limit 1.1 x baseline + 16 = {1.1 * base + 16:.0f}: **{'PASS' if ok else 'FAIL'}**")
+    return ok
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000)
@@ -204,6 +324,15 @@ def main(argv=None) -> int:
     parser.add_argument("--matchers", default="sift,klt")
     parser.add_argument("--klt-edge-guard", type=float, default=0.1)
     parser.add_argument("--poses", default="gt", help="comma-separated: gt (street ping-pong), vio (the room loop)")
+    parser.add_argument("--points", default=None,
+                        help="vio rows: the points preset (e.g. vio; default: the pipeline's)")
+    parser.add_argument("--backends", default="inline", type=lambda t: [parse_backend(b) for b in t.split(",") if b],
+                        help="vio rows, comma-separated: inline, process or process:LAG (the landmark window in a "
+                             "worker; its memory is sampled too)")
+    parser.add_argument("--history-frames", type=int, default=None,
+                        help="vio rows: VioSettings.history_frames (the poses remembered; default 20 000)")
+    parser.add_argument("--tracemalloc", default="", metavar="A,B",
+                        help="trace Python allocations (slow) and list the sites that grew most between frames A and B")
     parser.add_argument("--scale", type=float, default=0.5, help="image size factor of the room loop (vio)")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="where the room loop is rendered (vio)")
     args = parser.parse_args(argv)
@@ -212,6 +341,9 @@ def main(argv=None) -> int:
         parser.error(f"unknown --poses {args.poses!r} (valid: gt, vio)")
     if args.baseline % args.every or not args.every <= args.baseline < args.frames:
         parser.error("--baseline must be a multiple of --every and below --frames")
+    trace = [int(t) for t in args.tracemalloc.split(",") if t.strip()]
+    if trace and not (len(trace) == 2 and 0 < trace[0] < trace[1] <= args.frames):
+        parser.error("--tracemalloc wants two frame counts A,B with 0 < A < B <= --frames")
     print(f"# machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
           f"{np.__version__}; load average {os.getloadavg()[0]:.1f} at start; "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}", flush=True)
@@ -224,30 +356,34 @@ def main(argv=None) -> int:
             print(f"# street sample ping-ponged to {args.frames} frames, --poses gt, FrameStream; SIMULATED disparity")
         else:
             folder = prepare_loop(args.cache, args.frames, args.scale, log=lambda m: print(m, flush=True))
-            print(f"# room loop, {args.frames} frames at x{args.scale:g}, 20 Hz, --poses vio --pairing indoor, "
-                  "FrameStream; SIMULATED images, 200 Hz IMU and disparity (2 / true depth + 0.1)", flush=True)
+            print(f"# room loop, {args.frames} frames at x{args.scale:g}, 20 Hz, --poses vio --pairing indoor"
+                  f"{'' if args.points is None else ' --points ' + args.points}, FrameStream; SIMULATED images, "
+                  "200 Hz IMU and disparity (2 / true depth + 0.1)", flush=True)
         for matcher in [m for m in args.matchers.split(",") if m]:
             guard = args.klt_edge_guard if matcher == "klt" else None
-            # each row in a fresh process would isolate the peaks; one process keeps it simple:
-            # the peak (VmHWM) is reset before each row where Linux allows it
-            reset_peak_rss()
-            push = street_gt(matcher, args.frames, guard) if pose == "gt" else LoopVio(folder, matcher, guard)
-            rows = measure(args.frames, args.every, push)
-            label = f"--poses {pose}, {matcher}" + ("" if guard is None else f", guard {guard:g}")
-            print(f"\n## {label}\n\n| frames | RSS MiB | peak MiB | seconds |\n|---|---|---|---|")
-            for k, rss, peak, sec in rows:
-                print(f"| {k} | {rss:.0f} | {peak:.0f} | {sec:.0f} |")
-            base = next(p for k, _, p, _ in rows if k == args.baseline)
-            end = rows[-1][2]
-            ok = end <= 1.1 * base + 16
-            failed |= not ok
-            print(f"\npeak at frame {rows[-1][0]}: {end:.0f} MiB; at frame {args.baseline} (baseline): {base:.0f} MiB; "
-                  f"limit 1.1 x baseline + 16 = {1.1 * base + 16:.0f}: **{'PASS' if ok else 'FAIL'}**")
-            if isinstance(push, LoopVio):
-                for line in push.report(args.frames):
-                    print(f"- {line}")
-            sys.stdout.flush()
-            del push
+            for backend in args.backends if pose == "vio" else [None]:
+                # each row in a fresh process would isolate the peaks; one process keeps it simple:
+                # the peak (VmHWM) is reset before each row where Linux allows it
+                reset_peak_rss()
+                push = street_gt(matcher, args.frames, guard) if pose == "gt" else \
+                    LoopVio(folder, matcher, guard, args.points, backend, args.history_frames)
+                snapshots = dict.fromkeys(trace) if trace else None
+                rows = measure(args.frames, args.every, push, snapshots)
+                label = f"--poses {pose}, {matcher}" + ("" if guard is None else f", guard {guard:g}") \
+                    + ("" if backend is None else f", backend {backend.kind}"
+                       + (f" (lag {backend.lag_frames})" if backend.kind == "process" else "")) \
+                    + ("" if args.history_frames is None or pose == "gt" else f", history_frames {args.history_frames}")
+                failed |= not print_row(label, rows, args.baseline, backend is not None and backend.kind == "process",
+                                        bool(trace))
+                if isinstance(push, LoopVio):
+                    for line in push.report(args.frames):
+                        print(f"- {line}")
+                if trace:
+                    print()
+                    for line in snapshot_diff(snapshots[trace[0]], snapshots[trace[1]], trace[1] - trace[0]):
+                        print(f"    {line}")
+                sys.stdout.flush()
+                del push, snapshots
     return 1 if failed else 0
 
 
