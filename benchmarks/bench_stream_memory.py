@@ -23,7 +23,7 @@ with the edge guard). Every ``--every`` frames it samples this process's residen
   ``--points vio`` fits the odometry's own landmarks; ``--backends inline,process:6`` runs a
   row per landmark-window backend (``VioSettings.backend``): with ``process`` the worker
   process's ``VmRSS`` / ``VmHWM`` are sampled too (``/proc/<pid>/status`` of this process's
-  children). ``--history-frames`` sets ``VioSettings.history_frames`` (the odometry's pose
+  children, summed: the worker and multiprocessing's resource tracker, 13 MiB). ``--history-frames`` sets ``VioSettings.history_frames`` (the odometry's pose
   history, bounded by it: the part of a vio row's memory that still grows until that many
   frames passed).
 
@@ -306,9 +306,11 @@ def print_row(label: str, rows: list[Sample], baseline: int, worker: bool, trace
     slopes = [("RSS", "rss")] + [("worker RSS", "worker_rss")] * worker + [("traced", "traced")] * traced
     print("\nsecond half (frames >= " + f"{rows[-1].frames // 2}), least-squares slope: "
           + ", ".join(f"{name} {second_half_slope(rows, field):+.1f} KiB/frame" for name, field in slopes))
-    # the criterion counts the worker too: its peak plus ours bounds the pair's peak from above
+    # a process row's criterion counts the children too (the worker and multiprocessing's resource
+    # tracker): their peaks plus ours bound the peak of all from above. An inline row after a process
+    # row still has the tracker (13 MiB, idle): not counted
     base_row = next(r for r in rows if r.frames == baseline)
-    base, end = base_row.peak + base_row.worker_peak, rows[-1].peak + rows[-1].worker_peak
+    base, end = base_row.peak + worker * base_row.worker_peak, rows[-1].peak + worker * rows[-1].worker_peak
     ok = end <= 1.1 * base + 16
     what = "peak (+ worker peak)" if worker else "peak"
     print(f"{what} at frame {rows[-1].frames}: {end:.0f} MiB; at frame {baseline} (baseline): {base:.0f} MiB; "
