@@ -364,7 +364,10 @@ class VioEstimator:
                 self.initializer.refuse(why, drop_oldest=False)
                 return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
             self._log_start(res, frame_id)
-            # this frame is tracked from the initialisation's newest keyframe
+            # this frame is tracked from the initialisation's newest keyframe; the frames since it
+            # waited unposed, so a rest (a static start's) continues from that keyframe
+            kf = res.keyframes[-1]
+            self.rest.observe(kf.frame_id, kf.t, kf.features, True)
             return replace(self._track(int(frame_id), float(t), camera, features), initialised=res.kind)
         if not self.tracking:
             res = self.initializer.process(frame_id, t, camera, features)

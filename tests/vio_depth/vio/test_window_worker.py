@@ -96,3 +96,22 @@ def test_the_start_built_in_the_worker_is_taken_over_later_and_the_frames_betwee
     t = np.array([scene.frames[k].timestamp for k in posed])
     ate = absolute_trajectory_error(CameraTrajectory(t, poses[posed]), CameraTrajectory(t, scene.T_w_c[posed]))
     assert ate.rmse < 0.005 * scene.path_length() and abs(ate.scale - 1) < 0.01, (ate.rmse, ate.scale)
+
+
+def test_a_static_start_built_in_the_worker_rests_from_the_take_over_on():
+    """A static start taken over ``start_lag_frames`` later: the frames between it and the
+    take-over waited unposed, so the rest continues from the start's keyframe. Before, the
+    take-over frame was posed by the IMU alone over the lag, the rest anchored on it, and every
+    frame after it was ``converging`` (scale known to 300 %) on the real EuRoC still slice."""
+    scene = make_scene(duration_s=3.5, still_s=3.0, seed=2)
+    lag = 8
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
+    start = next(i for i, o in enumerate(out) if "the window is being built" in o.reason)
+    assert est.last_init is not None and est.last_init.kind.value == "static"
+    landed = start + lag
+    assert out[landed].initialised is not None
+    resting = [i for i, f in enumerate(scene.frames) if landed <= i and f.timestamp < 2.9]
+    assert len(resting) > 20
+    assert all(out[i].status.value == "still" and out[i].ok for i in resting), {out[i].status.value for i in resting}
+    p0 = poses[start][:3, 3]  # the static start's keyframe
+    assert max(np.linalg.norm(poses[i][:3, 3] - p0) for i in resting) < 1e-3
