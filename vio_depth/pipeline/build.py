@@ -123,8 +123,11 @@ def build_pose_stage(settings: PoseSettings | str, sequence=None, matcher: Match
                 _require_calibration(stream, "vio")
                 import_gtsam()  # now, not at the first frame
                 # the source waits for the first IMU samples; the window's worker, if any, starts
-                # now: its interpreter takes seconds to start, while the first frames are read
+                # now and the stream is built once it answers: its interpreter takes 1-3 s to
+                # import the pipeline, which would otherwise compete with the first frames
                 worker = ProcessWindow() if settings.backend.kind == "process" else None
+                if worker is not None:
+                    worker.ping()
                 source = LazyImuPoses("vio", stream, lambda imu: VioPoseSource(imu, matcher, settings, worker),
                                       matcher)
             return PoseStage(source, source)
