@@ -63,6 +63,8 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array
 from vio_core.errors import InputError, SettingsError
 
+from .batched import finite, inv2, quad2, solve3, sum_by
+
 # numerical floor on the largest angle between a track's rays (degrees): below it the
 # geometry is treated as degenerate whatever the stated uncertainties say
 _MIN_ANGLE_DEG = 1e-3
@@ -201,54 +203,6 @@ def pose_jacobian(p_c) -> np.ndarray:
     return J
 
 
-def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sums of ``values: (M, ...)`` grouped by ``index: (M,)`` into (n, ...), float64."""
-    k = int(np.prod(values.shape[1:], dtype=np.int64))
-    # one bincount over (group, component) bins: each bin still sums its values in row
-    # order, as one bincount per component did
-    bins = (np.asarray(index, np.int64)[:, None] * k + np.arange(k)).ravel()
-    out = np.bincount(bins, weights=values.reshape(-1), minlength=n * k)
-    out = out.astype(np.float64, copy=False)  # bincount of nothing: int zeros
-    return out.reshape((n,) + values.shape[1:])
-
-
-def _quad2(r: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """(M,) quadratic forms ``r_i^T S_i r_i`` of ``r: (M, 2)``, ``S: (M, 2, 2)``."""
-    r0, r1 = r[:, 0], r[:, 1]
-    return r0 * (S[:, 0, 0] * r0 + S[:, 0, 1] * r1) + r1 * (S[:, 1, 0] * r0 + S[:, 1, 1] * r1)
-
-
-def _inv2(S: np.ndarray) -> np.ndarray:
-    """Batched closed-form inverse of (M, 2, 2) symmetric positive-definite matrices."""
-    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    det = a * d - b * b
-    out = np.empty_like(S)
-    out[:, 0, 0] = d / det
-    out[:, 1, 1] = a / det
-    out[:, 0, 1] = out[:, 1, 0] = -b / det
-    return out
-
-
-def _finite(a: np.ndarray, **kwargs) -> np.ndarray:
-    """``np.nan_to_num(a, **kwargs)``, without its cost when ``a`` is already finite (the usual case)."""
-    return a if np.isfinite(a).all() else np.nan_to_num(a, **kwargs)
-
-
-def _solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        A0 = _finite(A)
-        det = np.linalg.det(A0)
-    scale = np.einsum("nii->n", A0) ** 3
-    ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
-    if ok.all():  # the usual case: no masked copies (each matrix is solved on its own either way)
-        return np.linalg.solve(A, b[..., None])[..., 0], ok
-    x = np.full(b.shape, np.nan)
-    if ok.any():
-        x[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
-    return x, ok
-
-
 def _project(R_cw, d_w, fx, fy, cx, cy, ideal):
     """Camera points ``R_cw d_w`` (M, 3) and ideal-pixel residuals (M, 2) of observations at
     ``ideal`` (M, 2). Every value is computed row by row: the same whichever other rows come
@@ -262,9 +216,9 @@ def _project(R_cw, d_w, fx, fy, cx, cy, ideal):
 def _linear_points(t, rays_w, centres, w, n_tracks):
     """Least-squares nearest point to weighted rays: (T, 3) and (T,) bool solvable."""
     P = _EYE3[None] - rays_w[:, :, None] * rays_w[:, None, :]
-    A = _sum_by(t, w[:, None, None] * P, n_tracks)
-    b = _sum_by(t, w[:, None] * np.einsum("nij,nj->ni", P, centres), n_tracks)
-    return _solve3(A, b)
+    A = sum_by(t, w[:, None, None] * P, n_tracks)
+    b = sum_by(t, w[:, None] * np.einsum("nij,nj->ni", P, centres), n_tracks)
+    return solve3(A, b)
 
 
 def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSettings = MultiviewSettings(),
@@ -339,7 +293,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     mark(~(ok | ok2), TrackStatus.LOW_PARALLAX)
     # rays that meet behind every camera: no point in front can explain them
     z_lin = np.einsum("nj,nj->n", X[t] - centres, R_cw[:, 2, :])
-    mark(_sum_by(t, (inlier & (z_lin > 0)).astype(float), n_tracks) == 0, TrackStatus.BEHIND_CAMERA)
+    mark(sum_by(t, (inlier & (z_lin > 0)).astype(float), n_tracks) == 0, TrackStatus.BEHIND_CAMERA)
 
     # whitening of each observation: pixel noise + image motion from pose uncertainty
     cov_v = None if cov is None else cov[view]
@@ -353,7 +307,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         if cov is not None:
             J_pose = Jp @ pose_jacobian(p_c)  # (M, 2, 6) pixels per pose tangent unit
             S = S + J_pose @ cov_v[o] @ np.transpose(J_pose, (0, 2, 1))
-        return Jp, _inv2(S), J_pose
+        return Jp, inv2(S), J_pose
 
     def residuals(X, o=slice(None)):
         """Camera points and ideal-pixel residuals of the observations ``o`` at points ``X``."""
@@ -393,16 +347,16 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             J = Jp @ R_o  # (M, 2, 3) d pixel / d X
             JtS = np.transpose(J, (0, 2, 1)) @ S_o
             wts = use.astype(float)
-            H = _sum_by(tc, wts[:, None, None] * (JtS @ J), n)
-            g = _sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, _finite(r)), n)
-            step, solvable = _solve3(H, -g)
-            e0 = _quad2(r, S_o)
+            H = sum_by(tc, wts[:, None, None] * (JtS @ J), n)
+            g = sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, finite(r)), n)
+            step, solvable = solve3(H, -g)
+            e0 = quad2(r, S_o)
             cost0 = np.bincount(tc, weights=np.where(use & np.isfinite(e0), e0, 0.0), minlength=n)
-            step = _finite(step)
+            step = finite(step)
             X_rows = X[rows]
             X_try = np.where(solvable[:, None], X_rows + step, X_rows)
             p_new, r_new = _project(R_o, X_try[tc] - c_o, fx_o, fy_o, cx[o], cy[o], ideal[o])
-            e1 = _quad2(r_new, S_o)
+            e1 = quad2(r_new, S_o)
             use1 = use & (p_new[:, 2] > 0) & np.isfinite(e1)
             cost1 = np.bincount(tc, weights=np.where(use1, e1, 0.0), minlength=n)
             better = solvable & (cost1 <= cost0) & np.all(np.isfinite(X_try), axis=1)
@@ -420,7 +374,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         o = np.nonzero(solve[t])[0]
         p_c, r = pc_all[o], r_all[o]
         S_inv[o] = obs_info(p_c, o)[1]
-        e = _quad2(_finite(r, nan=1e6), S_inv[o])
+        e = quad2(finite(r, nan=1e6), S_inv[o])
         e = np.where(p_c[:, 2] > 0, e, np.inf)
         bad = inlier[o] & (e > s.max_residual_sigmas**2)
         if not bad.any():
@@ -439,7 +393,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     # --- final residuals, gate, covariance, per-observation depth and sigma
     p_c, r = pc_all, r_all
     Jp, S_inv, J_pose = obs_info(p_c)
-    e = _quad2(_finite(r, nan=1e6), S_inv)
+    e = quad2(finite(r, nan=1e6), S_inv)
     behind = p_c[:, 2] <= 0
     inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
@@ -447,13 +401,13 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
 
     J = Jp @ R_cw
     JtS = np.transpose(J, (0, 2, 1)) @ S_inv
-    H = _sum_by(t, inlier[:, None, None] * (JtS @ J), n_tracks)
+    H = sum_by(t, inlier[:, None, None] * (JtS @ J), n_tracks)
     eye = np.broadcast_to(_EYE3, H.shape)
-    Hinv_cols = [_solve3(H, np.ascontiguousarray(eye[:, :, k]))[0] for k in range(3)]
+    Hinv_cols = [solve3(H, np.ascontiguousarray(eye[:, :, k]))[0] for k in range(3)]
     cov_w = np.stack(Hinv_cols, axis=2)
 
     # largest angle between inlier rays (the pair with the extreme directions)
-    mean_ray = _sum_by(t, np.where(inlier[:, None], rays_w, 0.0), n_tracks)
+    mean_ray = sum_by(t, np.where(inlier[:, None], rays_w, 0.0), n_tracks)
     mean_ray /= np.maximum(np.linalg.norm(mean_ray, axis=1, keepdims=True), 1e-300)
     ang = np.degrees(np.arccos(np.clip(np.sum(rays_w * mean_ray[t], 1), -1.0, 1.0)))
     spread = np.zeros(n_tracks)
@@ -476,10 +430,10 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         var = var + 2.0 * np.where(inlier, cross, 0.0)
     sigma = np.sqrt(np.maximum(var, 0.0))
 
-    front = _sum_by(t, (inlier & ~(depth > 0)).astype(float), n_tracks) == 0
+    front = sum_by(t, (inlier & ~(depth > 0)).astype(float), n_tracks) == 0
     mark(~front, TrackStatus.BEHIND_CAMERA)
     in_range = (depth >= s.min_depth_m) & (depth <= s.max_depth_m)
-    mark(_sum_by(t, (inlier & ~in_range).astype(float), n_tracks) > 0, TrackStatus.DEPTH_RANGE)
+    mark(sum_by(t, (inlier & ~in_range).astype(float), n_tracks) > 0, TrackStatus.DEPTH_RANGE)
     rel = np.where(inlier, sigma / np.where(depth > 0, depth, np.nan), 0.0)
     worst_rel = np.zeros(n_tracks)
     np.maximum.at(worst_rel, t, np.nan_to_num(rel, nan=np.inf))

@@ -219,19 +219,3 @@ def test_bad_inputs():
         MultiviewSettings(max_relative_sigma=0)
     res = triangulate_tracks(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), CAM, T)
     assert len(res.track_ids) == 0 and len(res.depth) == 0
-
-
-def test_sum_by_equals_one_bincount_per_component():
-    """_sum_by's single bincount over (group, component) bins sums each bin in row order,
-    bit for bit as one bincount per component; float64 even when there is nothing to sum."""
-    from triangulation.multiview import _sum_by
-
-    rng = np.random.default_rng(2)
-    for m, n, shape in [(0, 0, (3, 3)), (0, 5, (3,)), (1000, 37, (3, 3)), (5000, 1200, (3,)), (7, 7, ())]:
-        index = rng.integers(0, max(n, 1), m)
-        values = rng.normal(size=(m, *shape)) * 10 ** rng.uniform(-10, 10, (m,) + (1,) * len(shape))
-        flat = values.reshape(m, int(np.prod(shape, dtype=np.int64)))
-        want = np.stack([np.bincount(index, weights=flat[:, k], minlength=n) for k in range(flat.shape[1])], 1)
-        got = _sum_by(index, values, n)
-        assert got.dtype == np.float64 and got.shape == (n, *shape)
-        assert np.array_equal(got.reshape(want.shape), want.astype(np.float64))
