@@ -37,7 +37,8 @@ frame waits for its update; ``process``, the update runs in a worker process
 motion-only refinement against the window as it was; it is taken over ``lag_frames`` frames
 later, before that frame's prediction (health check, bridges and history as for an inline
 keyframe). The keyframe's own frame keeps the pose it was given when processed (anchored to
-the previous keyframe) until the window's refined pose replaces it.
+the previous keyframe) until the window's refined pose replaces it. An initialisation's
+window is built there too, taken over ``start_lag_frames`` later (the frames between wait).
 """
 
 from __future__ import annotations
@@ -110,10 +111,10 @@ class VioFrame:
         return self.T_w_c is not None
 
 
-def _log_start_keyframe(upd: WindowUpdate) -> None:
-    log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, "
-              "graph error %.1f -> %.1f", upd.frame_id, upd.landmarks, upd.observations,
-              upd.median_residual_px, upd.lm_error_before, upd.lm_error_after)
+def _log_start_keyframe(u: WindowUpdate) -> None:
+    log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, graph error "
+              "%.1f -> %.1f", u.frame_id, u.landmarks, u.observations, u.median_residual_px, u.lm_error_before,
+              u.lm_error_after)
 
 
 class VioEstimator:
