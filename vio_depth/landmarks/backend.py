@@ -79,13 +79,13 @@ def _serve(conn) -> None:
 
 
 def _stop(proc, conn) -> None:
+    """Ask the worker to stop and close the pipe (a worker blocked sending a reply then fails and
+    exits); no waiting: run when the object is collected, which may be in the middle of a frame
+    (joining a worker's exit cost ~0.1 s there). :meth:`ProcessWindow.close` waits."""
     try:
         conn.send(("stop",))
     except (OSError, ValueError):
         pass
-    proc.join(timeout=2.0)
-    if proc.is_alive():
-        proc.terminate()
     conn.close()
 
 
@@ -199,8 +199,13 @@ class ProcessWindow:
         return self.result()
 
     def close(self) -> None:
-        """Stop the worker (also done when the object is collected or at exit)."""
+        """Stop the worker and wait for it to exit (it is also told to stop, without waiting,
+        when the object is collected; a daemon, it ends with the interpreter at the latest)."""
         self._finalizer()
+        self._proc.join(timeout=2.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=2.0)
 
     # ------------------------------------------------------------------ pipe
     def _send(self, msg) -> None:

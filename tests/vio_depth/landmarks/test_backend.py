@@ -6,6 +6,7 @@ keyframe meanwhile and takes the update over ``lag_frames`` frames later."""
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import pickle
 import threading
@@ -325,3 +326,24 @@ def test_the_estimator_takes_a_submitted_keyframe_over_lag_frames_later(worker):
     if est.pending is not None:
         update = est.land(len(scene.T_w_c), wait=True)
         assert update.ok and est.window.keyframe_ids[-1] == update.frame_id
+
+
+def test_close_waits_for_the_worker_and_a_collected_window_stops_its_worker_even_mid_reply(scene):
+    """``close`` returns once the worker has exited. A window collected without ``close`` only
+    tells its worker to stop and closes the pipe (waiting there cost a frame ~0.1 s when the
+    collector ran mid-stream): the worker exits even when it was blocked sending a large reply."""
+    worker = ProcessWindow()
+    worker.ping()
+    worker.close()
+    assert not worker._proc.is_alive() and worker._proc.exitcode == 0
+    worker = ProcessWindow()
+    proc = worker._proc
+    worker.reset(SETTINGS)
+    big = [_padded(kf, 40_000) for kf in _keyframes(scene, [0, 2])]
+    worker.insert(big[0])
+    worker.submit(big[1])  # its reply does not fit in the pipe: the worker blocks sending it
+    time.sleep(2.0)
+    del worker
+    gc.collect()
+    proc.join(timeout=20)
+    assert not proc.is_alive()
