@@ -23,7 +23,6 @@ in the caller; anything else, or a worker that died, raises
 from __future__ import annotations
 
 import multiprocessing as mp
-from collections import deque
 import traceback
 import weakref
 from typing import Any, Callable, Sequence
@@ -103,9 +102,9 @@ class ProcessWindow:
         self._proc.start()
         child.close()
         self._pending = False
-        # replies owed by the worker before the pending result's: "new" (a reset's, short: its
-        # error is raised, nothing else is read from it)
-        self._owed: deque[str] = deque()
+        # replies owed by the worker before the next one waited for: resets' (short; an error in
+        # one is raised, nothing else is read from them)
+        self._owed = 0
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
     @property
@@ -153,7 +152,7 @@ class ProcessWindow:
             except VioDepthError:
                 pass  # the old window's failure: it is dropped anyway
         self._send(("new", settings, motion_factory))
-        self._owed.append("new")  # a short reply: the worker sends it and reads on
+        self._owed += 1  # a short reply: the worker sends it and reads on
 
     def submit(self, kf: KeyframeInput, initial: Any | None = None, samples: Any | None = None) -> None:
         """Send a keyframe (:meth:`LandmarkWindow.add_keyframe`'s arguments; ``samples``: the
@@ -229,7 +228,7 @@ class ProcessWindow:
         return reply
 
     def _owed_reply(self) -> None:
-        self._owed.popleft()
+        self._owed -= 1
         self._receive()
 
     def _receive(self):

@@ -21,6 +21,7 @@ from vio_core.errors import InputError
 
 from ..frame import Frame, ImuData
 from ..poses import FramePose, RelativePose
+from ..vio import VioPoseSource
 
 #: the reason of every pose asked for before the first IMU samples
 NO_SAMPLES_YET = "no IMU samples pushed yet"
@@ -151,8 +152,7 @@ class LazyImuPoses:
         """Seconds before which the source reads no frame or IMU sample of the stream again,
         or None when it may read any (the ``imu`` source: its static start reads the first
         samples; its bias fit, past frames' poses)."""
-        needed = getattr(self.source, "samples_needed_since", None)
-        return None if needed is None else needed()
+        return self.source.samples_needed_since() if isinstance(self.source, VioPoseSource) else None
 
     def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
         source = self._current()

@@ -68,13 +68,11 @@ def import_gtsam():
     return gtsam
 
 
-_gtsam = import_gtsam
-
 
 def preintegration_params(imu: ImuData, settings: ImuPoseSettings = ImuPoseSettings()):
     """``gtsam.PreintegrationCombinedParams`` from the IMU's noise densities (times the
     settings' noise scales) and gravity."""
-    gtsam = _gtsam()
+    gtsam = import_gtsam()
     p = gtsam.PreintegrationCombinedParams(np.asarray(imu.gravity_w, dtype=np.float64))
     eye = np.eye(3)
     p.setAccelerometerCovariance(eye * (settings.accel_noise_scale * imu.accel_noise)**2)
@@ -125,7 +123,7 @@ def preintegrate(imu: ImuData, t0: float, t1: float, params, accel_bias, gyro_bi
     Returns:
         ``(pim, "")`` or ``(None, reason)`` when the IMU does not cover the interval.
     """
-    gtsam = _gtsam()
+    gtsam = import_gtsam()
     if not t1 >= t0:
         return None, f"end time {t1:.3f} s is before start time {t0:.3f} s"
     pim = gtsam.PreintegratedCombinedMeasurements(params, _bias(gtsam, accel_bias, gyro_bias))
@@ -160,7 +158,7 @@ def integrate_interval(imu: ImuData, start: NavEstimate, t1: float, params=None,
     Returns:
         ``(ImuIntegration, "")`` or ``(None, reason)`` when the IMU does not cover the interval.
     """
-    gtsam = _gtsam()
+    gtsam = import_gtsam()
     check_transform("start.T_w_i", start.T_w_i)
     check_array("start.velocity_w", start.velocity_w, (3,), finite=True)
     t0 = float(start.t)
@@ -216,7 +214,7 @@ def preintegrate_checkpoints(imu: ImuData, params, t0: float, times, accel_bias,
         ``(dR (K, 3, 3), dp (K, 3) m, dv (K, 3) m/s)`` in the IMU frame at ``t0`` (without
         gravity), or None when the IMU does not cover ``[t0, times[-1]]``.
     """
-    gtsam = _gtsam()
+    gtsam = import_gtsam()
     times = check_array("times", times, (None,), finite=True)
     pieces, _ = _pieces(imu, t0, float(times[-1]), max_gap, times)
     if pieces is None:

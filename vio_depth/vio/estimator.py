@@ -395,7 +395,7 @@ class VioEstimator:
                  len(res.keyframes),
                  "" if al is None else f"; scale {al.scale:.4g} +- {al.scale_sigma:.1%}, gravity error "
                                        f"{al.gravity_error:+.2f} m/s^2, excitation {al.excitation:.2f} m/s^2")
-        for upd in self.landmarks.landed_updates if self.backend is not None else ():
+        for upd in self.landmarks.landed_updates:  # a start built in the worker (inline: logged by _start)
             _log_start_keyframe(upd)
         self.last_init = res
 
