@@ -59,6 +59,16 @@ class RescalerSettings:
             (the default) fits every point. Corners (``--matcher klt``) sit on edges: 0.1
             there.
         spread_radius_px: the half-size of that window, pixels.
+        shared_error_confidence: the probability with which the error the points share (their
+            pose's, the odometry's scale: ``AffineFit.shared_covariance``) must stay within
+            ``max_fit_error``, or None (only the mean is bounded, as before 2026-12-04). That
+            error is **one draw for the whole map**: it does not average over the pixels, so
+            a frame's error is that draw, not its mean -- a frame whose shared error has a
+            1-sigma of 3.7 % passes a bound of 0.03 on the mean (0.8 sigma) but is off by
+            more than 4.4 % one time in four. A frame (and a scale-only fallback, which
+            uses this frame's points) is written only when ``z sigma_shared <= max_fit_error``
+            at the map's median pixel, ``z`` the two-sided normal quantile of this
+            probability (0.9: z = 1.645; docs/error_model.md section 5).
     """
 
     ransac: RansacSettings = RansacSettings()
@@ -69,6 +79,7 @@ class RescalerSettings:
     max_fallback_error: float | None = None
     max_disparity_spread: float | None = None
     spread_radius_px: int = 3
+    shared_error_confidence: float | None = 0.9
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
@@ -80,11 +91,23 @@ class RescalerSettings:
                 or self.spread_radius_px < 1:
             raise SettingsError(f"RescalerSettings.spread_radius_px must be an integer >= 1, got "
                                 f"{self.spread_radius_px!r}")
+        if self.shared_error_confidence is not None and not 0 < self.shared_error_confidence < 1:
+            raise SettingsError(f"RescalerSettings.shared_error_confidence must be in (0, 1) or None, got "
+                                f"{self.shared_error_confidence!r}")
         if self.max_fallback_error is not None:
             require_positive(self, "max_fallback_error", finite=False)
             if self.max_fallback_error > self.max_fit_error:
                 raise SettingsError(f"RescalerSettings.max_fallback_error ({self.max_fallback_error!r}) must not "
                                     f"exceed max_fit_error ({self.max_fit_error!r}): a fallback obeys the same bound")
+
+    @property
+    def shared_error_sigmas(self) -> float:
+        """``z``: sigmas of the shared error that must fit within ``max_fit_error`` (0: off)."""
+        if self.shared_error_confidence is None:
+            return 0.0
+        from scipy.stats import norm
+
+        return float(norm.ppf(0.5 + 0.5 * self.shared_error_confidence))
 
     @property
     def fallback_bound(self) -> float:
@@ -265,8 +288,8 @@ class Rescaler:
         reasons = [f"fit {raw.status.value}: {raw.reason}"]
         own_error = own_abs_rel = None
         pose_error = None
-        if raw.ok and np.any(raw.shared_covariance):
-            pose_error = self._predicted_error(raw, disparity_map, anchors, covariance=raw.shared_covariance)
+        if raw.ok:
+            pose_error = self._shared_error(raw, disparity_map, anchors)
         if raw.ok:
             used = raw
             reason = raw.reason
@@ -279,16 +302,20 @@ class Rescaler:
                 # (the same keyframes and poses): that part of this frame's fit stays
                 error = max(error, pose_error)
             abs_rel = self._predicted_error(used, disparity_map, anchors, extra=raw.model_relative_sd)
-            if error <= s.max_fit_error:
+            shared_why = self._shared_too_large(pose_error)
+            if error <= s.max_fit_error and not shared_why:
                 self._last_ok_frame = self._frame
                 self._last_ok_fit = used
                 self._use(used, anchors, disparity_map)
                 return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason,
                                      predicted_error=error, predicted_abs_rel=abs_rel, predicted_pose_error=pose_error)
             own_error, own_abs_rel = error, abs_rel
-            why = f"predicted relative depth error {error:.3g} > max_fit_error {s.max_fit_error:g}"
-            if pose_error is not None and pose_error >= 0.5 * error:
-                why += f" (the points' pose uncertainty alone: {pose_error:.3g})"
+            if error <= s.max_fit_error:
+                why = shared_why
+            else:
+                why = f"predicted relative depth error {error:.3g} > max_fit_error {s.max_fit_error:g}"
+                if pose_error is not None and pose_error >= 0.5 * error:
+                    why += f" (the points' pose uncertainty alone: {pose_error:.3g})"
             reasons = [f"fit uncertain: {why}"]
         bound = s.fallback_bound
         age_ok = None if self._last_ok_frame is None else self._frame - self._last_ok_frame
@@ -308,7 +335,10 @@ class Rescaler:
                 error = self._predicted_error(scale, disparity_map, anchors)
                 abs_rel = self._predicted_error(scale, disparity_map, anchors, extra=scale.model_relative_sd)
                 reasons.append(f"scale-only fit with beta of frame {self._last_ok_frame}: {scale.reason}")
-                if error <= bound:
+                shared_why = self._shared_too_large(self._shared_error(scale, disparity_map, anchors))
+                if shared_why:
+                    reasons.append(f"scale-only fit: {shared_why}")
+                if error <= bound and not shared_why:
                     self._use(scale, anchors, disparity_map)
                     return RescaleResult(FitSource.SCALE_ONLY, scale, raw, scale_only=scale, filtered=estimate,
                                          reason="; ".join(reasons), predicted_error=error, predicted_abs_rel=abs_rel,
@@ -341,6 +371,27 @@ class Rescaler:
             cov = inflate_covariance(used.alpha, used.beta, used.covariance, age, then, self._process)
             return replace(used, covariance=cov), "reused unchanged (no disparity map to carry it)"
         return used, "reused unchanged"
+
+    def _shared_error(self, fit: AffineFit, disparity_map, anchors) -> float | None:
+        """The predicted mean error of ``fit`` from the errors its points share, or None without any."""
+        shared = fit.shared_covariance
+        if not (np.all(np.isfinite(shared)) and np.any(shared)):
+            return None
+        return self._predicted_error(fit, disparity_map, anchors, covariance=shared)
+
+    def _shared_too_large(self, shared_error: float | None) -> str:
+        """Why the shared error's quantile (:attr:`RescalerSettings.shared_error_confidence`) exceeds
+        ``max_fit_error``, or "" (within it, or no such error, or the check off)."""
+        s = self.settings
+        z = s.shared_error_sigmas
+        if shared_error is None or z == 0:
+            return ""
+        sigma = shared_error / np.sqrt(2.0 / np.pi)  # E|e| = sqrt(2/pi) sigma
+        if z * sigma <= s.max_fit_error:
+            return ""
+        return (f"the error the points share (pose, scale: one draw for the whole map) is {sigma:.3g} (1-sigma): "
+                f"{z:.2f} sigma > max_fit_error {s.max_fit_error:g} (shared_error_confidence "
+                f"{s.shared_error_confidence:g})")
 
     def _predicted_error(self, fit: AffineFit, disparity_map, anchors, covariance=None, extra: float = 0.0) -> float:
         """Predicted mean relative depth error of ``fit`` (with ``covariance`` instead of its
