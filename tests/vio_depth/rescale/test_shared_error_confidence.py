@@ -43,8 +43,8 @@ SIGMAS = np.linspace(0.01, 0.036, 120)
 def test_written_frames_are_within_the_bound_with_the_stated_confidence():
     written, errors = _frames(SIGMAS, PER_FRAME)
     assert written >= 30, f"only {written} of {len(SIGMAS)} written: the check refuses too much"
-    bad = np.mean(errors > PER_FRAME.max_fit_error)
-    assert bad <= 1 - PER_FRAME.shared_error_confidence - 0.02, (
+    bad = np.mean(errors > 0.03)  # max_fit_error
+    assert bad <= 0.08, (  # shared_error_confidence 0.9, with room for the sample
         f"{bad:.0%} of the written frames are off by more than max_fit_error")
 
 
