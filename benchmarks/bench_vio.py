@@ -179,6 +179,10 @@ def main(argv=None) -> int:
     parser.add_argument("--lag-frames", type=int, default=6, help="with --backend: frames until an update is taken")
     parser.add_argument("--matcher", default=None, help="matcher preset (default: the pipeline's; klt with --backend)")
     args = parser.parse_args(argv)
+    args.samples = [n for arg in args.samples for n in arg.split(",") if n]  # "street,room" or "street room"
+    unknown = [n for n in args.samples if n not in SAMPLES]
+    if unknown:
+        parser.error(f"unknown sample(s) {', '.join(unknown)} (valid: {', '.join(SAMPLES)})")
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
           f"numpy {np.__version__}; timings on a shared machine are indicative only")
     if args.backend is not None:
