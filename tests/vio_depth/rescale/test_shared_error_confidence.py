@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from vio_core.errors import SettingsError
-from vio_depth.rescale import Rescaler, RescalerSettings
+from vio_depth.rescale import KalmanSettings, Rescaler, RescalerSettings
 
 D_MAP = np.linspace(0.25, 1.0, 60 * 60).reshape(60, 60)  # exact disparity = 1/depth, 1-4 m
 PER_FRAME = RescalerSettings(temporal=None, fallback=False)  # each frame alone
@@ -63,7 +63,8 @@ def test_a_small_shared_error_is_still_written():
 
 
 def test_scale_only_fallback_obeys_the_same_bound():
-    settings = RescalerSettings(temporal=None)
+    # a slow process model (0.5 % a frame), so that a scale-only fit one frame later can pass at all
+    settings = RescalerSettings(temporal=KalmanSettings(process_sigma=0.005))
     r = Rescaler(settings)
     rng = np.random.default_rng(5)
     d = rng.uniform(0.25, 1.0, 200)
@@ -71,9 +72,26 @@ def test_scale_only_fallback_obeys_the_same_bound():
     d3 = rng.uniform(0.25, 1.0, 4)  # too few for a full fit: the scale-only fallback
     z3 = 1.0 / d3
     small = r.update(d3, z3, 0.002 * z3, disparity_map=D_MAP, depth_shared=(0.005 * z3)[:, None])
-    assert small.source.value == "scale_only"
+    assert small.source.value == "scale_only", small.reason
     large = r.update(d3, z3, 0.002 * z3, disparity_map=D_MAP, depth_shared=(0.025 * z3)[:, None])
     assert not large.has_depth and "one draw for the whole map" in large.reason
+
+
+def test_scale_only_fallback_carries_beta_into_a_renormalised_frame():
+    # the network renormalises the next frame (d' = 2 d + 0.3); a scale-only fit with the old
+    # frame's beta reused unchanged is far off while predicting little (a street frame: 12 %
+    # off, predicted 0.028); carried through this frame's anchors it is not
+    rng = np.random.default_rng(7)
+    r = Rescaler(RescalerSettings(temporal=KalmanSettings(process_sigma=0.005)))
+    d = rng.uniform(0.25, 1.0, 200)
+    assert r.update(d, 1.0 / d, 0.002 / d, disparity_map=D_MAP).has_depth
+    inv = rng.uniform(0.5, 0.55, 3)  # true inverse depths of this frame's three points (close together)
+    res = r.update(2.0 * inv + 0.3, 1.0 / inv, 0.002 / inv, disparity_map=2.0 * D_MAP + 0.3)
+    assert res.source.value in ("scale_only", "none"), res.reason
+    if res.has_depth:
+        m = res.fit.alpha * (2.0 * D_MAP + 0.3) + res.fit.beta
+        actual = float(np.median(np.abs(D_MAP / m - 1.0)))
+        assert actual <= max(0.03, 2 * res.predicted_error), (actual, res.predicted_error)
 
 
 @pytest.mark.parametrize("bad", [0.0, 1.0, -0.5, 2.0])
