@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -105,9 +106,7 @@ class RescalerSettings:
         """``z``: sigmas of the shared error that must fit within ``max_fit_error`` (0: off)."""
         if self.shared_error_confidence is None:
             return 0.0
-        from scipy.stats import norm
-
-        return float(norm.ppf(0.5 + 0.5 * self.shared_error_confidence))
+        return float(NormalDist().inv_cdf(0.5 + 0.5 * self.shared_error_confidence))
 
     @property
     def fallback_bound(self) -> float:
