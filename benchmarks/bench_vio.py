@@ -33,6 +33,11 @@ IMU stream (the ``imu`` preset row: what the IMU alone gives, without images).
 
     python benchmarks/bench_vio.py                      # both samples + EuRoC (about 10 min on 2 cores)
     python benchmarks/bench_vio.py --samples room --no-euroc
+    python benchmarks/bench_vio.py --samples street,room --no-euroc --backend process   # window inline vs worker
+
+``--backend process``: only the ``--points vio`` table (klt + edge guard 0.1 unless ``--matcher``),
+each sample with the odometry's window inline and in a worker process (``--lag-frames``, 6),
+in the same run: frames written, wrong written frames (which), AbsRel and oracle AbsRel.
 """
 
 from __future__ import annotations
