@@ -226,8 +226,8 @@ class Rescaler:
         self._frame = -1
         self._last_ok_frame: int | None = None
         self._last_ok_fit: AffineFit | None = None
-        self._last_ok_anchors: tuple[float, float] | None = None  # and whether they came from a map:
-        self._last_ok_map_anchors = False
+        self._last_ok_anchors: tuple[float, float] | None = None  # the last OK frame's anchors
+        self._last_ok_map_anchors = False  # ... came from a disparity map (not the points)
         self._last_used_frame: int | None = None
         self._last_used_fit: AffineFit | None = None
         self._last_used_anchors: tuple[float, float] | None = None
@@ -291,7 +291,6 @@ class Rescaler:
         pose_error = None
         if raw.ok:
             pose_error = self._shared_error(raw, disparity_map, anchors)
-        if raw.ok:
             used = raw
             reason = raw.reason
             if estimate is not None and anchors is not None:
@@ -335,7 +334,7 @@ class Rescaler:
                 anchors = self._anchors(d, scale.inliers, disparity_map)
                 error = self._predicted_error(scale, disparity_map, anchors)
                 abs_rel = self._predicted_error(scale, disparity_map, anchors, extra=scale.model_relative_sd)
-                reasons.append(f"scale-only fit with beta of frame {self._last_ok_frame}: {scale.reason}")
+                reasons.append(f"scale-only fit with beta carried from frame {self._last_ok_frame}: {scale.reason}")
                 shared_why = self._shared_too_large(self._shared_error(scale, disparity_map, anchors))
                 if shared_why:
                     reasons.append(f"scale-only fit: {shared_why}")
