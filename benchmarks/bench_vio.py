@@ -56,7 +56,7 @@ SAMPLES = {"street": dict(pairing=None, max_depth=80.0), "room": dict(pairing="i
 
 
 def run_sample(name: str, poses: str, out: Path, points: str = "sfm", matcher: str | None = None,
-               backend: str = "inline", lag_frames: int = 6):
+               backend: str = "inline", lag_frames: int = 6, shared_confidence: float | None = None):
     """``(RunSummary, frame records)`` of one full run (``matcher`` None: the default; klt with the
     edge guard 0.1, as the realtime benches; ``backend`` "process": the odometry's landmark window
     in a worker process, its updates taken over ``lag_frames`` later)."""
@@ -71,6 +71,8 @@ def run_sample(name: str, poses: str, out: Path, points: str = "sfm", matcher: s
     settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"], points=points, matcher=matcher)
     if matcher == "klt":  # its corners sit on depth edges (bench_realtime's klt rows do the same)
         settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=0.1))
+    if shared_confidence is not None:
+        settings = replace(settings, rescaler=replace(settings.rescaler, shared_error_confidence=shared_confidence))
     if poses == "vio" and backend != "inline":
         settings = replace(settings, poses=replace(settings.poses, backend=WindowBackendSettings(backend, lag_frames)))
     summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=spec["max_depth"]),
@@ -126,7 +128,8 @@ def sample_rows(names) -> tuple[list[str], list[str]]:
     return rows, point_rows
 
 
-def backend_rows(names, matcher: str | None, backend: str, lag_frames: int) -> list[str]:
+def backend_rows(names, matcher: str | None, backend: str, lag_frames: int,
+                 shared_confidence: float | None = None) -> list[str]:
     """``--points vio`` with the odometry's window inline and in a worker process, same run: frames
     written, wrong written (and which), AbsRel and oracle AbsRel over the frames written."""
     rows = []
@@ -134,7 +137,7 @@ def backend_rows(names, matcher: str | None, backend: str, lag_frames: int) -> l
         for name in names:
             for kind in ("inline", backend):
                 summary, records = run_sample(name, "vio", Path(tmp) / f"{name}_{kind}", "vio", matcher, kind,
-                                              lag_frames)
+                                              lag_frames, shared_confidence)
                 m, oracle = summary.metrics["vio"], summary.metrics["oracle"]
                 wrong = wrong_frames(records)
                 label = "inline" if kind == "inline" else f"{kind}, lag {lag_frames}"
@@ -182,6 +185,8 @@ def main(argv=None) -> int:
     parser.add_argument("--backend", default=None, help="e.g. 'process': only the --points vio table, the "
                         "odometry's window inline and in a worker process (klt matcher unless --matcher)")
     parser.add_argument("--lag-frames", type=int, default=6, help="with --backend: frames until an update is taken")
+    parser.add_argument("--shared-error-confidence", type=float, default=None,
+                        help="with --backend: the rescaler's shared_error_confidence (default: off)")
     parser.add_argument("--matcher", default=None, help="matcher preset (default: the pipeline's; klt with --backend)")
     args = parser.parse_args(argv)
     args.samples = [n for arg in args.samples for n in arg.split(",") if n]  # "street,room" or "street room"
@@ -196,7 +201,9 @@ def main(argv=None) -> int:
               "(backward pass); wrong: AbsRel > 2 x the frame's oracle + 0.02\n")
         print("| sample (SIMULATED) | window | frames written | wrong written (frames) | AbsRel | oracle AbsRel |")
         print("|---" * 6 + "|")
-        backend_rows(args.samples, matcher, args.backend, args.lag_frames)
+        if args.shared_error_confidence is not None:
+            print(f"(rescaler: shared_error_confidence {args.shared_error_confidence})\n")
+        backend_rows(args.samples, matcher, args.backend, args.lag_frames, args.shared_error_confidence)
         return 0
     if args.samples:
         print("\n| sample (SIMULATED) | poses | frames with depth | AbsRel | / gt | ATE m | ATE / path | RPE 1 m "

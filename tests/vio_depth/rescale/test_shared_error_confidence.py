@@ -15,7 +15,7 @@ from vio_core.errors import SettingsError
 from vio_depth.rescale import KalmanSettings, Rescaler, RescalerSettings
 
 D_MAP = np.linspace(0.25, 1.0, 60 * 60).reshape(60, 60)  # exact disparity = 1/depth, 1-4 m
-PER_FRAME = RescalerSettings(temporal=None, fallback=False)  # each frame alone
+PER_FRAME = RescalerSettings(temporal=None, fallback=False, shared_error_confidence=0.9)  # each frame alone
 
 
 def _frames(scale_sigmas, settings: RescalerSettings, seed: int = 3):
@@ -64,7 +64,7 @@ def test_a_small_shared_error_is_still_written():
 
 def test_scale_only_fallback_obeys_the_same_bound():
     # a slow process model (0.5 % a frame), so that a scale-only fit one frame later can pass at all
-    settings = RescalerSettings(temporal=KalmanSettings(process_sigma=0.005))
+    settings = RescalerSettings(temporal=KalmanSettings(process_sigma=0.005), shared_error_confidence=0.9)
     r = Rescaler(settings)
     rng = np.random.default_rng(5)
     d = rng.uniform(0.25, 1.0, 200)
@@ -92,6 +92,10 @@ def test_scale_only_fallback_carries_beta_into_a_renormalised_frame():
         m = res.fit.alpha * (2.0 * D_MAP + 0.3) + res.fit.beta
         actual = float(np.median(np.abs(D_MAP / m - 1.0)))
         assert actual <= max(0.03, 2 * res.predicted_error), (actual, res.predicted_error)
+
+
+def test_off_by_default():
+    assert RescalerSettings().shared_error_confidence is None and RescalerSettings().shared_error_sigmas == 0
 
 
 @pytest.mark.parametrize("bad", [0.0, 1.0, -0.5, 2.0])
