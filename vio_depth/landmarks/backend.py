@@ -82,7 +82,10 @@ def _serve(conn) -> None:
             reply = ("raise", exc, traceback.format_exc())
         except Exception:  # a bug: its traceback goes to the caller
             reply = ("crash", traceback.format_exc())
-        conn.send(reply)
+        try:
+            conn.send(reply)
+        except (BrokenPipeError, OSError):  # the owner is gone (collected mid-request): stop quietly
+            return
 
 
 def _stop(proc, conn) -> None:
