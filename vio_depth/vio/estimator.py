@@ -116,9 +116,10 @@ class VioEstimator:
         self.backend = None
         #: offers the frames to the initializer: itself, or with the dynamic attempt in the worker
         self._init: Initializer | RemoteInitializer = self.initializer
+        self._remote_init: RemoteInitializer | None = None
         if settings.backend.kind == "process":
             self.backend = ProcessWindow() if backend is None else backend
-            self._init = RemoteInitializer(self.initializer, self.backend, settings.backend)
+            self._init = self._remote_init = RemoteInitializer(self.initializer, self.backend, settings.backend)
 
     @property
     def imu(self) -> ImuData:
@@ -247,10 +248,11 @@ class VioEstimator:
 
     def _submit_start(self, res: InitResult) -> None:
         """Send the initialisation's keyframes to the window worker; :meth:`_land_start` takes
-        the window over ``start_lag_frames`` frames later, and the frames meanwhile wait
-        (initialising)."""
+        the window over ``start_lag_frames`` frames after the initialisation (its attempt's
+        submission), at least one frame later, and the frames meanwhile wait (initialising)."""
         keyframes = self._start_keyframes(res)  # builds self.landmarks
-        self.landmarks.submit_keyframes(keyframes)
+        since = 0 if self._remote_init is None else self._remote_init.landed_after  # the attempt's
+        self.landmarks.submit_keyframes(keyframes, max(self.settings.backend.start_lag_frames - since, 1))
         self._starting = res
 
     def _land_start(self, frame_id: int) -> tuple[bool, str]:
@@ -348,7 +350,8 @@ class VioEstimator:
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
 
-    def _track_started(self, res: InitResult, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
+    def _track_started(self, res: InitResult, frame_id: int, t: float, camera: Camera,
+                       features: Features) -> VioFrame:
         """The first frame after a start whose newest keyframe is an earlier frame: tracked from
         that keyframe; the frames since it were not (a rest, a static start's, continues from it)."""
         self._log_start(res, frame_id)

@@ -13,7 +13,9 @@ attempt's candidates, with every frame offered since the first of them (those af
 keyframe too) to be posed from its keyframes; a refusal is handled as in the frame
 (:meth:`~.initializer.Initializer.refuse`: a failed reconstruction drops the attempt's oldest
 candidate, if it is still the oldest), and the next frame whose conditions hold tries again.
-A static start, checked in every frame, drops an attempt in flight. The worker's failures are
+A static start, checked in every frame, drops an attempt in flight. The window of a start
+taken over here is due ``start_lag_frames`` after the attempt's submission (not after its
+take-over: the first tracked frame is the one it would be with the attempt in its own frame). The worker's failures are
 raised as the attempt would have raised them in the frame (:mod:`vio_depth.landmarks.backend`).
 """
 
@@ -54,6 +56,9 @@ class RemoteInitializer:
         self._frames = 0
         #: attempts sent to the worker (diagnostics)
         self.submitted = 0
+        #: frames between the submission of the last start's attempt and its take-over (0 for a
+        #: static start): the start's window, built in the worker after it, is due that much sooner
+        self.landed_after = 0
 
     @property
     def in_flight(self) -> bool:
@@ -85,6 +90,7 @@ class RemoteInitializer:
         res = self.initializer.process(frame_id, t, camera, features, defer=True)
         if res.ok:  # a static start
             self._drop()
+            self.landed_after = 0
             return res
         if res.attempt and self._flight is None:
             ini = self.initializer
@@ -102,6 +108,7 @@ class RemoteInitializer:
         if not (self._frames - f.at >= b.init_lag_frames or (b.apply_when_ready and self.backend.call_ready())):
             return None
         self._flight = None
+        self.landed_after = self._frames - f.at
         res = self.initializer.attempt_result(self.backend.call_result(), f.candidates, f.frames)
         if not res.ok:  # a reconstruction failure may come from the oldest candidate: drop it
             self.initializer.refuse(res.reason, drop_oldest=res.alignment is None, oldest=f.candidates[0].frame_id)

@@ -82,18 +82,29 @@ def test_the_attempt_is_taken_over_init_lag_frames_later_with_the_synchronous_st
     assert ate.rmse < 0.005 * scene.path_length() and abs(ate.scale - 1) < 0.01, (ate.rmse, ate.scale)
 
 
-def test_with_the_start_built_in_the_worker_too_the_run_is_reproducible(scene):
-    backend = WindowBackendSettings("process", lag_frames=4, start_lag_frames=6, init_lag_frames=5)
-    est, out, poses, _ = _run(scene, backend)
+def test_with_the_start_built_in_the_worker_too_its_lag_counts_from_the_attempt_s_frame(scene):
+    """``start_lag_frames`` counts from the frame that submitted the attempt: the first tracked
+    frame and every pose are those of the run with the attempt in its own frame (which does not
+    pose the frames offered while the attempt ran: they are posed here too), reproducibly."""
+    start_lag, init_lag = 8, 5
+    est0, out0, poses0, _ = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=start_lag,
+                                                              init_lag_frames=0))
+    backend = WindowBackendSettings("process", lag_frames=4, start_lag_frames=start_lag, init_lag_frames=init_lag)
+    est, out, poses, flight = _run(scene, backend)
     _, out2, poses2, _ = _run(scene, backend)
     np.testing.assert_array_equal(poses, poses2)
     assert [o.status for o in out] == [o.status for o in out2]
+    submitted = flight.index(True)
     landed = next(i for i, o in enumerate(out) if o.initialised is not None)
-    # the attempt's lag, then the start's: the frames between keep initialising
-    submitted = landed - 6 - 5
+    assert landed == submitted + start_lag == next(i for i, o in enumerate(out0) if o.initialised is not None)
     assert all(o.status == VioStatus.INITIALISING for o in out[:landed])
-    assert "the window is being built" in out[submitted + 5].reason
-    assert est.last_init.keyframes[-1].frame_id == scene.frames[submitted].index
+    assert "the window is being built" in out[submitted + init_lag].reason
+    assert est.last_init.keyframes[-1].frame_id == est0.last_init.keyframes[-1].frame_id == scene.frames[submitted].index
+    assert [o.status for o in out] == [o.status for o in out0]
+    both = np.isfinite(poses0[:, 0, 0])
+    np.testing.assert_allclose(poses[both], poses0[both], rtol=0, atol=1e-9)
+    ran = range(submitted + 1, submitted + init_lag)
+    assert all(np.isfinite(poses[k, 0, 0]) and not both[k] for k in ran)
 
 
 def test_a_refused_attempt_keeps_the_candidates_and_the_next_one_is_submitted(scene):
