@@ -145,7 +145,7 @@ class LandmarkEstimator:
         of :meth:`submit_keyframes` the same way after ``start_lag_frames``. The refined
         window replaces the current one; its keyframe's features are kept for matching.
         Call it (or let :meth:`process` call it) once per frame, before the frame's own
-        processing; idempotent for the same ``frame_id``.
+        processing; a second call for the same ``frame_id`` returns None (without ``wait``).
 
         Returns:
             The :class:`~.types.WindowUpdate` taken over (``ok`` False: the window refused the
@@ -157,6 +157,8 @@ class LandmarkEstimator:
         if frame_id != self._frame_id:
             self._frame_id = frame_id
             self._frames += 1
+        elif not wait:  # decided at this frame's first call: an update ready only since is the next
+            return None  # frame's (a caller that takes it over before process() would miss it)
         if self._pending is None:
             return None
         at, keyframes, lag = self._pending

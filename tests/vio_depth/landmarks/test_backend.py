@@ -411,3 +411,32 @@ def test_discard_drops_a_pending_call_and_a_reset_after_a_call_keeps_the_pipe_in
     update, _ = worker.insert(_keyframes(scene, [0])[0])
     assert update.ok
     worker.discard()  # nothing pending: returns at once
+
+
+def test_with_apply_when_ready_an_update_ready_after_the_frame_s_first_look_lands_at_the_next_frame(worker):
+    """The odometry calls ``land`` before the frame's prediction and ``process`` calls it again:
+    an update that became ready between the two must not land in the second call (the caller
+    would never see it: its keyframe missed from the odometry's history, a KeyError on the
+    SIMULATED ASL sample with ``--vio-when-ready`` on a loaded machine)."""
+    scene = make_scene(n_frames=8, n_points=250, step_m=0.12, prior_rot_deg=0.1, prior_trans_m=0.005, seed=12)
+    est = LandmarkEstimator(SETTINGS, IdMatcher(), backend=worker, backend_settings=WindowBackendSettings(
+        "process", lag_frames=50, apply_when_ready=True))
+    k = 0
+    while est.pending is None or est.pending == 0:
+        est.process(k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        k += 1
+    pending = est.pending
+    ready = worker.ready
+    try:
+        worker.ready = lambda: False  # not ready at the frame's first look
+        assert est.land(k) is None
+        worker.ready = ready
+        while not worker.ready():
+            time.sleep(0.01)
+        assert est.land(k) is None and est.pending == pending  # ready now, but this frame has decided
+        out = est.process(k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        assert out.landed is None and est.pending == pending
+        update = est.land(k + 1)  # the next frame takes it over
+        assert update is not None and update.frame_id == pending and est.pending is None
+    finally:
+        worker.ready = ready
