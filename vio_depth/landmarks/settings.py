@@ -224,8 +224,10 @@ class WindowBackendSettings:
             (docs/benchmarks.md "The landmark window in a worker process"); SIFT's frames,
             matched against keyframe descriptors, lose accuracy with a long lag (2: ASL sample
             ATE 7.1 vs 6.7 mm; 6: 13.8 mm).
-        start_lag_frames: frames after an initialisation at which the window built from its
-            keyframes in the worker is taken over (waiting for it then if it is not ready);
+        start_lag_frames: frames after an initialisation (for a dynamic one run in the worker:
+            after the frame that submitted it, at least one after its take-over) at which the
+            window built from its keyframes in the worker is taken over (waiting for it then if
+            it is not ready);
             the frames meanwhile are not posed (``initialising``). 0: the initialisation's
             frame waits for it, as inline. The default 20 (one second at 20 Hz) covers the
             worker's start (its interpreter imports the pipeline: 1-3 s on two cores, while
