@@ -124,7 +124,16 @@ class LandmarkSettings:
             pixel sigma, residual gate in sigmas, ``max_relative_sigma``.
         window_keyframes: keyframes kept in the window; the oldest is marginalised
             beyond it (bounds memory and time).
-        match_keyframes: newest keyframes every frame is matched with.
+        match_keyframes: newest keyframes every frame is matched with (SIFT matching is the
+            window's largest per-frame cost on feature-rich frames: 3 -> 2 cut it by a third
+            at the same AbsRel on street and room, docs/benchmarks.md).
+        refresh_keyframes: after a refinement, the tracks seen by the newest this many
+            keyframes are triangulated again at the refined poses (besides the tracks the new
+            keyframe changed); the others keep their last triangulation, made at the previous
+            refinement's poses. 1: the new keyframe's tracks only (the second triangulation was
+            a third of a keyframe's cost, and with the sequence's poses as priors a refinement
+            moves the older keyframes little); the odometry's window, whose poses come from
+            the IMU, refreshes every keyframe it matches with.
         min_track_length: fewest keyframe observations of a landmark in the graph.
         huber_sigmas: Huber threshold of the projection factors, in pixel sigmas.
         ba_relative_sigma_factor: tracks enter the graph when VALID, or UNCERTAIN with a
@@ -138,7 +147,9 @@ class LandmarkSettings:
             window refinement (~100 ms on 1242x375 street frames, two-thirds of the window's
             cost), so a looser bound that makes most frames keyframes buys little accuracy:
             0.25 -> 0.15 took 66 -> 42 (SIFT) and 109 -> 59 (KLT) keyframes on the 130 street
-            frames for AbsRel 0.0194 -> 0.0199 and 0.0186 -> 0.0187 (docs/benchmarks.md) ...
+            frames for AbsRel 0.0194 -> 0.0199 and 0.0186 -> 0.0187; 0.12 (with
+            ``match_keyframes`` 2) keeps street at 0.0194 / 0.0191; 0.10 was cheaper still but
+            worse on KITTI-tiny's real frames (docs/benchmarks.md) ...
         keyframe_min_tracked_fraction: ... or when fewer than this fraction of the
             newest keyframe's tracked landmarks are found in the frame (the view changed).
         max_keyframe_gap: ... or when this many frames passed since the newest keyframe.
@@ -160,11 +171,12 @@ class LandmarkSettings:
     pose_prior: PosePriorSettings | None = None
     multiview: MultiviewSettings = field(default_factory=MultiviewSettings)
     window_keyframes: int = 16
-    match_keyframes: int = 3
+    match_keyframes: int = 2
+    refresh_keyframes: int = 1
     min_track_length: int = 2
     huber_sigmas: float = 2.0
     ba_relative_sigma_factor: float = 3.0
-    keyframe_relative_sigma: float = 0.15
+    keyframe_relative_sigma: float = 0.12
     keyframe_min_tracked_fraction: float = 0.5
     max_keyframe_gap: int = 30
     ba_max_landmarks: int = 800
@@ -175,8 +187,8 @@ class LandmarkSettings:
     min_query_points: int = 12
 
     def __post_init__(self):
-        if self.window_keyframes < 2 or self.match_keyframes < 1:
-            raise SettingsError("window_keyframes must be >= 2 and match_keyframes >= 1")
+        if self.window_keyframes < 2 or self.match_keyframes < 1 or self.refresh_keyframes < 1:
+            raise SettingsError("window_keyframes must be >= 2, match_keyframes and refresh_keyframes >= 1")
         if self.min_track_length < 2:
             raise SettingsError("min_track_length must be >= 2")
         if not (self.huber_sigmas > 0 and self.keyframe_relative_sigma > 0):

@@ -23,8 +23,8 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
    (bookkeeping: :mod:`.covariance`), and each
    landmark's point, covariance and depth (with sigma) in every keyframe observing it
    from a final multi-view triangulation at the refined poses with those covariances (of
-   the tracks seen by the newest ``match_keyframes`` keyframes, which the next frames are
-   matched with, and of the tracks that changed; the others keep their last result);
+   the tracks seen by the newest ``refresh_keyframes`` keyframes and of the tracks that
+   changed; the others keep their last result);
 6. beyond ``window_keyframes`` the oldest keyframe is **marginalised** (:mod:`.marginalisation`):
    its projection factors are dropped (their landmarks keep their other observations;
    OKVIS-style, to keep the graph sparse), and its other factors (motion factors,
@@ -217,10 +217,9 @@ class LandmarkWindow:
             self._graph.add_factors(self.motion_factors.after_marginalisation(next(iter(self._kf)),
                                                                               self._graph.values))
         # the landmarks of the (possibly shrunk) window at the refined poses and covariances:
-        # every track seen by the keyframes the next frames are matched with (what queries
-        # read); the others keep their triangulation from before the refinement unless
-        # they changed
-        _, lm = self._triangulate(self._pre, self.keyframe_ids[-self.settings.match_keyframes:])
+        # every track seen by the newest refresh_keyframes keyframes; the others keep their
+        # triangulation from before the refinement unless they changed
+        _, lm = self._triangulate(self._pre, self.keyframe_ids[-self.settings.refresh_keyframes:])
         self._pre = None
         self._landmarks = lm
         good = lm.inlier & lm.valid[lm.obs_track]

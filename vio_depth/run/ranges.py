@@ -202,6 +202,7 @@ SETTING_RANGES: dict[str, str] = {
     # landmarks (--points landmarks and the odometry's window)
     "LandmarkSettings.window_keyframes": "[2, inf)",
     "LandmarkSettings.match_keyframes": "[1, inf)",
+    "LandmarkSettings.refresh_keyframes": "[1, inf)",
     "LandmarkSettings.min_track_length": "[2, inf)",
     "LandmarkSettings.huber_sigmas": "(0, inf)",
     "LandmarkSettings.ba_relative_sigma_factor": "(0, inf)",
