@@ -88,6 +88,11 @@ def _serve(conn) -> None:
             return
 
 
+#: seconds :meth:`ProcessWindow.close` waits for the worker's own exit before terminating it
+#: (an interpreter unloading gtsam on a loaded 2-core machine took more than 2 s once)
+_EXIT_WAIT_S = 15.0
+
+
 def _stop(proc, conn) -> None:
     """Ask the worker to stop and close the pipe (a worker blocked sending a reply then fails and
     exits); no waiting: run when the object is collected, which may be in the middle of a frame
@@ -253,7 +258,7 @@ class ProcessWindow:
         """Stop the worker and wait for it to exit (it is also told to stop, without waiting,
         when the object is collected; a daemon, it ends with the interpreter at the latest)."""
         self._finalizer()
-        self._proc.join(timeout=2.0)
+        self._proc.join(timeout=_EXIT_WAIT_S)
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(timeout=2.0)
