@@ -27,6 +27,7 @@ from .motion import MotionFactors, MotionFactorSource, PosePriorFactors
 from .resection import PoseRefinement, refine_pose
 from .settings import (
     POSE_PRIOR_PRESETS,
+    LANDMARK_SOLVERS,
     WINDOW_BACKENDS,
     LandmarkSettings,
     PosePriorSettings,
@@ -40,6 +41,7 @@ from .window import LandmarkWindow
 
 __all__ = [
     "POSE_PRIOR_PRESETS",
+    "LANDMARK_SOLVERS",
     "WINDOW_BACKENDS",
     "FrameLandmarks",
     "FrameMatches",
