@@ -50,8 +50,10 @@ from .settings import LandmarkSettings
 
 _log = logging.getLogger(__name__)
 
-#: iSAM2 relinearises a variable whose linear step exceeds this (rad / m / m/s; gtsam's default 0.1)
-_RELINEARIZE_THRESHOLD = 0.01
+#: iSAM2 relinearises a variable whose linear step exceeds this (rad / m / m/s; gtsam's default 0.1):
+#: 0.01 left the synthetic test scene's depths 11 % less accurate than the batch solver's (1.13 vs
+#: 1.02 % median error; 0.001: 1.02 %)
+_RELINEARIZE_THRESHOLD = 0.001
 #: iSAM2 updates per keyframe: the one that adds the keyframe, then more Gauss-Newton steps
 _ITERATIONS = 2
 
