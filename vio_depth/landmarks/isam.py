@@ -66,6 +66,11 @@ def _new_isam():
     p.relinearizeSkip = 1
     p.evaluateNonlinearError = True
     p.findUnusedFactorSlots = True  # removed factors' slots are reused: memory stays bounded
+    # QR, not Cholesky: with the IMU factors' stiff camera-IMU mounting (1e-5) the normal equations
+    # of an undamped Gauss-Newton step were "indeterminant" at every keyframe after the VIO's start on
+    # the street sample (Cholesky squares the condition number; the batch solver's Levenberg-Marquardt
+    # damps it)
+    p.setFactorization("QR")
     return gtsam.ISAM2(p)
 
 
