@@ -26,8 +26,8 @@ from .marginalisation import marginalise_factors
 from .motion import MotionFactors, MotionFactorSource, PosePriorFactors
 from .resection import PoseRefinement, refine_pose
 from .settings import (
-    POSE_PRIOR_PRESETS,
     LANDMARK_SOLVERS,
+    POSE_PRIOR_PRESETS,
     WINDOW_BACKENDS,
     LandmarkSettings,
     PosePriorSettings,
@@ -40,8 +40,8 @@ from .types import KeyframeInput, LandmarkPoints, UpdateStatus, WindowUpdate, Wo
 from .window import LandmarkWindow
 
 __all__ = [
-    "POSE_PRIOR_PRESETS",
     "LANDMARK_SOLVERS",
+    "POSE_PRIOR_PRESETS",
     "WINDOW_BACKENDS",
     "FrameLandmarks",
     "FrameMatches",

@@ -30,8 +30,8 @@ estimate (it is not reset to its re-triangulation), and ``restart_from_priors`` 
 reset the poses (iSAM2 keeps its linearisation point; :meth:`set_pose` only moves keys not
 yet in iSAM2). The keyframe poses' joint covariance comes from the Bayes tree
 (``ISAM2.jointMarginalCovariance``). A gtsam failure inside the update (an indeterminant
-system) rebuilds iSAM2 from the window's factors once; a second failure raises
-:class:`~vio_core.errors.NumericalError`.
+system) rebuilds iSAM2 from the window's factors once, with QR instead of Cholesky from then on;
+a second failure raises :class:`~vio_core.errors.NumericalError`.
 """
 
 from __future__ import annotations
@@ -58,7 +58,9 @@ _RELINEARIZE_THRESHOLD = 0.001
 _ITERATIONS = 2
 
 
-def _new_isam():
+def _new_isam(qr: bool = False):
+    """A fresh ``gtsam.ISAM2``: Cholesky, or QR (``qr``) for a window whose normal equations
+    Cholesky found indeterminant."""
     import gtsam
 
     p = gtsam.ISAM2Params()
@@ -66,11 +68,8 @@ def _new_isam():
     p.relinearizeSkip = 1
     p.evaluateNonlinearError = True
     p.findUnusedFactorSlots = True  # removed factors' slots are reused: memory stays bounded
-    # QR, not Cholesky: with the IMU factors' stiff camera-IMU mounting (1e-5) the normal equations
-    # of an undamped Gauss-Newton step were "indeterminant" at every keyframe after the VIO's start on
-    # the street sample (Cholesky squares the condition number; the batch solver's Levenberg-Marquardt
-    # damps it)
-    p.setFactorization("QR")
+    if qr:
+        p.setFactorization("QR")
     return gtsam.ISAM2(p)
 
 
@@ -90,6 +89,7 @@ class IsamGraph(WindowGraph):
         self._prior: dict[int, tuple[int, object]] = {}  # track id -> (slot, weak prior) of each landmark
         self._remove: list[int] = []  # slots to remove at the next update (marginalised keyframe's)
         self._noise = None
+        self.factorization = "cholesky"  # "qr" after a failed update (see refine)
         self.updates = 0  # iSAM2 updates so far; rebuilds: from-scratch rebuilds after a failure
         self.rebuilds = 0
 
@@ -143,7 +143,12 @@ class IsamGraph(WindowGraph):
         except RuntimeError as exc:  # indeterminant system: rebuild from the window's factors
             _log.info("landmarks: iSAM2 update failed (%s): rebuilt from the window's factors", exc)
             self.rebuilds += 1
-            self._isam, self._slot, self._proj, self._prior, self._remove = _new_isam(), {}, {}, {}, []
+            # from then on QR: with the IMU factors' stiff camera-IMU mounting (1e-5) Cholesky found
+            # the undamped Gauss-Newton system indeterminant at every keyframe after the VIO's start
+            # on the street sample (it squares the condition number; the batch solver's
+            # Levenberg-Marquardt damps it); QR costs 1.3-2x more per update
+            self.factorization = "qr"
+            self._isam, self._slot, self._proj, self._prior, self._remove = _new_isam(True), {}, {}, {}, []
             try:
                 before, after = self._update(want, obs, mv, cameras, newest)
             except RuntimeError as exc2:
