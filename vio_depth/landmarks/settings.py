@@ -155,7 +155,8 @@ class LandmarkSettings:
             estimate is not worth another full linear solve of the window.
         restart_from_priors: with pose priors on every keyframe, each refinement starts
             from the priors instead of the previous estimate (robust to a window that went
-            astray; costs a few more iterations).
+            astray; costs a few more iterations). The batch solver only: iSAM2 keeps its
+            linearisation point.
         query_max_iterations: Gauss-Newton iterations of a frame's pose refinement.
         min_query_points: fewer associated landmarks than this -> the frame's pose is
             not refined (its prior is used) and it is reported.
