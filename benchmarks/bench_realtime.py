@@ -74,6 +74,7 @@ odometry's own landmarks and covariances, nothing matched twice; issue 24, item 
 
     python benchmarks/bench_realtime.py                                  # every dataset (renders once)
     python benchmarks/bench_realtime.py --datasets asl_room,euroc --matchers klt --vio-points sfm,vio
+    python benchmarks/bench_realtime.py --datasets asl_loop --matchers klt --vio-points vio --modes realtime,afap
     python benchmarks/bench_realtime.py --datasets euroc,kitti_tiny --max-frames 40 --no-baselines
     python benchmarks/bench_realtime.py --datasets asl_room,euroc --matchers klt --vio-points vio \
         --vio-backends inline,process --vio-lag 6 --modes realtime,afap

@@ -33,6 +33,11 @@ IMU stream (the ``imu`` preset row: what the IMU alone gives, without images).
 
     python benchmarks/bench_vio.py                      # both samples + EuRoC (about 10 min on 2 cores)
     python benchmarks/bench_vio.py --samples room --no-euroc
+    python benchmarks/bench_vio.py --samples street,room --no-euroc --backend process   # window inline vs worker
+
+``--backend process``: only the ``--points vio`` table (klt + edge guard 0.1 unless ``--matcher``),
+each sample with the odometry's window inline and in a worker process (``--lag-frames``, 6),
+in the same run: frames written, wrong written frames (which), AbsRel and oracle AbsRel.
 """
 
 from __future__ import annotations
@@ -50,17 +55,35 @@ EUROC = ROOT / ".." / "shared" / "data" / "euroc_v101_static"
 SAMPLES = {"street": dict(pairing=None, max_depth=80.0), "room": dict(pairing="indoor", max_depth=10.0)}
 
 
-def run_sample(name: str, poses: str, out: Path, points: str = "sfm"):
-    """``(RunSummary, frame records)`` of one full run."""
+def run_sample(name: str, poses: str, out: Path, points: str = "sfm", matcher: str | None = None,
+               backend: str = "inline", lag_frames: int = 6, shared_confidence: float | None = None):
+    """``(RunSummary, frame records)`` of one full run (``matcher`` None: the default; klt with the
+    edge guard 0.1, as the realtime benches; ``backend`` "process": the odometry's landmark window
+    in a worker process, its updates taken over ``lag_frames`` later)."""
+    from dataclasses import replace
+
     from vio_depth import Pipeline, PipelineSettings, open_sequence
+    from vio_depth.landmarks import WindowBackendSettings
     from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
 
     spec = SAMPLES[name]
     seq = open_sequence(ROOT / "sample_sequences" / name)
-    settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"], points=points)
+    settings = PipelineSettings.from_presets(poses=poses, pairing=spec["pairing"], points=points, matcher=matcher)
+    if matcher == "klt":  # its corners sit on depth edges (bench_realtime's klt rows do the same)
+        settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=0.1))
+    if shared_confidence is not None:
+        settings = replace(settings, rescaler=replace(settings.rescaler, shared_error_confidence=shared_confidence))
+    if poses == "vio" and backend != "inline":
+        settings = replace(settings, poses=replace(settings.poses, backend=WindowBackendSettings(backend, lag_frames)))
     summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=spec["max_depth"]),
                            progress=False)
     return summary, read_frames_jsonl(out / "frames.jsonl")[1]
+
+
+def wrong_frames(records) -> list[int]:
+    """Frame indices written with AbsRel > 2 x the frame's oracle AbsRel + 0.02."""
+    return [r["frame"] for r in records if r.get("alpha") is not None and r.get("abs_rel") is not None
+            and r.get("oracle_abs_rel") is not None and r["abs_rel"] > 2 * r["oracle_abs_rel"] + 0.02]
 
 
 def points_row(name: str, points: str, summary, records) -> str:
@@ -105,6 +128,25 @@ def sample_rows(names) -> tuple[list[str], list[str]]:
     return rows, point_rows
 
 
+def backend_rows(names, matcher: str | None, backend: str, lag_frames: int,
+                 shared_confidence: float | None = None) -> list[str]:
+    """``--points vio`` with the odometry's window inline and in a worker process, same run: frames
+    written, wrong written (and which), AbsRel and oracle AbsRel over the frames written."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            for kind in ("inline", backend):
+                summary, records = run_sample(name, "vio", Path(tmp) / f"{name}_{kind}", "vio", matcher, kind,
+                                              lag_frames, shared_confidence)
+                m, oracle = summary.metrics["vio"], summary.metrics["oracle"]
+                wrong = wrong_frames(records)
+                label = "inline" if kind == "inline" else f"{kind}, lag {lag_frames}"
+                rows.append(f"| {name} | {label} | {summary.frames_with_depth}/{summary.frames_processed} "
+                            f"| {len(wrong)} {wrong if wrong else ''} | {m['abs_rel']:.4f} | {oracle['abs_rel']:.4f} |")
+                print(rows[-1], flush=True)
+    return rows
+
+
 def euroc_static_start() -> list[str]:
     """The odometry on the real still EuRoC slice: when it starts, its roll/pitch against the
     ground truth, how far the still camera's estimate wanders."""
@@ -140,9 +182,29 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", nargs="*", default=list(SAMPLES))
     parser.add_argument("--no-euroc", action="store_true")
+    parser.add_argument("--backend", default=None, help="e.g. 'process': only the --points vio table, the "
+                        "odometry's window inline and in a worker process (klt matcher unless --matcher)")
+    parser.add_argument("--lag-frames", type=int, default=6, help="with --backend: frames until an update is taken")
+    parser.add_argument("--shared-error-confidence", type=float, default=None,
+                        help="with --backend: the rescaler's shared_error_confidence (default: off)")
+    parser.add_argument("--matcher", default=None, help="matcher preset (default: the pipeline's; klt with --backend)")
     args = parser.parse_args(argv)
+    args.samples = [n for arg in args.samples for n in arg.split(",") if n]  # "street,room" or "street room"
+    unknown = [n for n in args.samples if n not in SAMPLES]
+    if unknown:
+        parser.error(f"unknown sample(s) {', '.join(unknown)} (valid: {', '.join(SAMPLES)})")
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
           f"numpy {np.__version__}; timings on a shared machine are indicative only")
+    if args.backend is not None:
+        matcher = args.matcher or "klt"
+        print(f"\n--points vio, --matcher {matcher}{' (edge guard 0.1)' if matcher == 'klt' else ''}, offline "
+              "(backward pass); wrong: AbsRel > 2 x the frame's oracle + 0.02\n")
+        print("| sample (SIMULATED) | window | frames written | wrong written (frames) | AbsRel | oracle AbsRel |")
+        print("|---" * 6 + "|")
+        if args.shared_error_confidence is not None:
+            print(f"(rescaler: shared_error_confidence {args.shared_error_confidence})\n")
+        backend_rows(args.samples, matcher, args.backend, args.lag_frames, args.shared_error_confidence)
+        return 0
     if args.samples:
         print("\n| sample (SIMULATED) | poses | frames with depth | AbsRel | / gt | ATE m | ATE / path | RPE 1 m "
               "| scale error | posed live | odometry fps |")

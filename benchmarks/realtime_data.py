@@ -6,6 +6,12 @@ source and pairing preset it is run with.
   the room scene and trajectory at its native 512x384, 20 Hz, 200 Hz SIMULATED IMU), rendered
   once into the cache; SIMULATED disparity files: an affine map of the rendered true inverse
   depth (as tests/vio_depth/vio/test_vio_runs.py builds them). SIMULATED images.
+* ``asl_loop`` -- ``--poses vio``: the room walked round its table in a closed loop
+  (``generate_asl_sample(trajectory="loop")``), 400 frames (20 s at 20 Hz, 200 Hz SIMULATED
+  IMU) at x1.46875 of 512x384 = **752x564** (EuRoC's width, more pixels than its 752x480: the
+  stand-in for a moving 752x480 recording, which ``../shared/data`` lacks); SIMULATED images and
+  disparity (the same affine map of the rendered true inverse depth). Long enough that the
+  start is not the p99.
 * ``euroc`` -- ``--poses vio``: the real EuRoC V1_01 still slice of ``../shared/data`` (752x480,
   20 Hz, real 200 Hz IMU); it has no depth, so its disparity is a SIMULATED smooth ramp (as
   ``benchmarks/compare_outputs.py``'s ``write_euroc_disparity``): only the pose / points path
@@ -41,6 +47,9 @@ KITTI_TINY = SHARED / "kitti_tiny" / "2011_09_26" / "2011_09_26_drive_0023_sync"
 #: frames of the generated ASL sample (rendered once, 4 s at 20 Hz)
 ASL_FRAMES = 80
 ASL_MARKER = "prepared.json"
+#: the room loop at EuRoC's width: frames and image size factor (752x564)
+LOOP_FRAMES = 400
+LOOP_SCALE = 752 / 512
 
 
 @dataclass
@@ -136,6 +145,32 @@ def _render_asl(folder: Path, log) -> None:
                 .astype(np.float32))  # SIMULATED: an affine map of the true inverse depth
 
 
+def asl_loop(cache: Path, log=print) -> StreamData:
+    """The room loop at 752x564 (SIMULATED), rendered into ``cache/asl_loop`` on first use."""
+    from vio_depth.simulate.asl import generate_asl_sample
+
+    folder = cache / "asl_loop"
+    want = {"sample": "room", "trajectory": "loop", "frames": LOOP_FRAMES, "scale": LOOP_SCALE,
+            "disparity": "2 / depth + 0.1", "layout": 1}
+    try:
+        ready = json.loads((folder / ASL_MARKER).read_text()) == want
+    except (OSError, ValueError):
+        ready = False
+    if not ready:
+        log(f"rendering the room loop ({LOOP_FRAMES} frames, 752x564) into {folder} (once; minutes)")
+        root = generate_asl_sample(folder, sample="room", n_frames=LOOP_FRAMES, scale=LOOP_SCALE, trajectory="loop",
+                                   depth_dir=folder / "depth")
+        out = folder / "disparity"
+        out.mkdir(parents=True, exist_ok=True)
+        for frame in open_sequence(root):
+            depth = np.load(folder / "depth" / f"{frame.stem}.npy")
+            np.save(out / f"{frame.stem}.npy", np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0)
+                    .astype(np.float32))  # SIMULATED: an affine map of the true inverse depth
+        (folder / ASL_MARKER).write_text(json.dumps(want))
+    return _rendered("asl_loop", "room loop at 752x564 (generated ASL): SIMULATED images, IMU and disparity (affine "
+                     "map of the true inverse depth)", folder, "vio", "indoor")
+
+
 def euroc(cache: Path, log=print) -> StreamData | None:
     """The real EuRoC still slice with a SIMULATED ramp disparity; None when absent."""
     if not EUROC.is_dir():
@@ -184,4 +219,4 @@ def street_kitti(cache: Path, log=print) -> StreamData:
 
 
 #: name -> builder ``(cache, log) -> StreamData | None`` (None: the data are absent)
-DATASETS = {"asl_room": asl_room, "euroc": euroc, "kitti_tiny": kitti_tiny, "street_kitti": street_kitti}
+DATASETS = {"asl_room": asl_room, "asl_loop": asl_loop, "euroc": euroc, "kitti_tiny": kitti_tiny, "street_kitti": street_kitti}

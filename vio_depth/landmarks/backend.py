@@ -18,6 +18,11 @@ back as the caller would have seen them inline: a :class:`~vio_core.errors.Numer
 (the window is unusable) or another :class:`~vio_core.errors.VioDepthError` is raised again
 in the caller; anything else, or a worker that died, raises
 :class:`~vio_core.errors.WorkerError` with the worker's traceback.
+
+The worker also runs other long computations of its owner beside the frames
+(:meth:`ProcessWindow.submit_call`: a picklable function and its arguments, e.g. a VIO's
+dynamic initialisation attempt), one at a time and never while a keyframe is pending; their
+failures come back the same way.
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ def _serve(conn) -> None:
         try:
             if msg[0] == "ping":
                 reply = ("ok", None, None)
+            elif msg[0] == "call":  # a function of the owner's (the window is left as it is)
+                reply = ("ok", msg[1](*msg[2]), None)
             elif msg[0] == "new":
                 _, settings, factory = msg
                 window = LandmarkWindow(settings, None if factory is None else factory())
@@ -68,13 +75,17 @@ def _serve(conn) -> None:
                 changed = len(updates) > 1 or updates[0].ok
                 reply = ("ok", tuple(updates), window.snapshot() if changed else None)
         except NumericalError as exc:
-            window = None  # unusable: the caller resets
+            if msg[0] != "call":
+                window = None  # unusable: the caller resets
             reply = ("numerical", str(exc))
         except VioDepthError as exc:
             reply = ("raise", exc, traceback.format_exc())
         except Exception:  # a bug: its traceback goes to the caller
             reply = ("crash", traceback.format_exc())
-        conn.send(reply)
+        try:
+            conn.send(reply)
+        except (BrokenPipeError, OSError):  # the owner is gone (collected mid-request): stop quietly
+            return
 
 
 def _stop(proc, conn) -> None:
@@ -102,6 +113,7 @@ class ProcessWindow:
         self._proc.start()
         child.close()
         self._pending = False
+        self._calling = False  # a submit_call's reply is owed
         # replies owed by the worker before the next one waited for: resets' (short; an error in
         # one is raised, nothing else is read from them)
         self._owed = 0
@@ -119,13 +131,58 @@ class ProcessWindow:
             self._owed_reply()
         return self._pending and not self._owed and self._conn.poll()
 
+    @property
+    def calling(self) -> bool:
+        """A :meth:`submit_call` was made and its result not taken yet."""
+        return self._calling
+
+    def call_ready(self) -> bool:
+        """The pending call's result has arrived (never blocks; as :meth:`ready`)."""
+        while self._owed and self._conn.poll():
+            self._owed_reply()
+        return self._calling and not self._owed and self._conn.poll()
+
+    def submit_call(self, fn: Callable[..., Any], *args) -> None:
+        """Run ``fn(*args)`` in the worker (both picklable; ``fn`` a module-level function);
+        returns at once. :meth:`call_result` takes the result. One at a time, and not while a
+        keyframe is pending (:meth:`discard` drops one first)."""
+        if self._pending or self._calling:
+            raise InputError("landmarks: the window worker is busy (take its result first)")
+        self._send(("call", fn, args))
+        self._calling = True
+
+    def call_result(self) -> Any:
+        """What the pending :meth:`submit_call` returned; waits for it.
+
+        Raises:
+            NumericalError, VioDepthError: what the function raised.
+            WorkerError: it failed unexpectedly, or the worker died.
+        """
+        if not self._calling:
+            raise InputError("landmarks: no call is pending")
+        self._calling = False
+        return self._reply()[0]
+
+    def discard(self) -> None:
+        """Wait for a pending keyframe's or call's result and drop it (a failure of it too,
+        but a :class:`WorkerError`); nothing pending: returns at once."""
+        try:
+            if self._pending:
+                self.result()
+            elif self._calling:
+                self.call_result()
+        except WorkerError:
+            raise
+        except VioDepthError:
+            pass  # what is dropped failed: nothing depends on it
+
     def ping(self) -> None:
         """Wait until the worker answers (it has started and imported what it needs).
 
         Raises:
             WorkerError, VioDepthError: a reset since the last wait failed in the worker.
         """
-        if self._pending:
+        if self._pending or self._calling:
             raise InputError("landmarks: a keyframe is being inserted (take its result first)")
         self._send(("ping",))
         self._reply()
@@ -143,14 +200,9 @@ class ProcessWindow:
             motion_factory: picklable callable returning the window's
                 :class:`~.motion.MotionFactorSource`, or None for pose priors.
         """
-        if self._pending:  # read (and drop) its reply first: a snapshot may not fit in the pipe's
-            # buffer, and a worker blocked sending it while we send would never read (deadlock)
-            try:
-                self.result()
-            except WorkerError:
-                raise
-            except VioDepthError:
-                pass  # the old window's failure: it is dropped anyway
+        # a pending reply is read (and dropped) first: a snapshot may not fit in the pipe's
+        # buffer, and a worker blocked sending it while we send would never read (deadlock)
+        self.discard()
         self._send(("new", settings, motion_factory))
         self._owed += 1  # a short reply: the worker sends it and reads on
 
@@ -163,7 +215,7 @@ class ProcessWindow:
         """Send keyframes ``(kf, initial, samples)`` (as :meth:`submit`'s) to be inserted in
         order, e.g. the keyframes of an initialisation; the worker stops at the first one the
         window refuses. Returns at once."""
-        if self._pending:
+        if self._pending or self._calling:
             raise InputError("landmarks: a keyframe is already being inserted (take its result first)")
         if not keyframes:
             raise InputError("landmarks: no keyframe to insert")

@@ -121,7 +121,7 @@ class LandmarkEstimator:
         self._frames = 0  # frames processed (the lag of a submitted keyframe counts them)
         self._frame_id: int | None = None
         # submitted keyframes: (frames count at submission, ((frame id, features, camera, keypoints), ...),
-        # whether they start the window: submit_keyframes)
+        # the frames until they are due: lag_frames, or submit_keyframes' lag)
         self._pending: tuple | None = None
         #: every update of the keyframes taken over by the last :meth:`land` (more than one after
         #: :meth:`submit_keyframes`)
@@ -145,7 +145,7 @@ class LandmarkEstimator:
         of :meth:`submit_keyframes` the same way after ``start_lag_frames``. The refined
         window replaces the current one; its keyframe's features are kept for matching.
         Call it (or let :meth:`process` call it) once per frame, before the frame's own
-        processing; idempotent for the same ``frame_id``.
+        processing; a second call for the same ``frame_id`` returns None (without ``wait``).
 
         Returns:
             The :class:`~.types.WindowUpdate` taken over (``ok`` False: the window refused the
@@ -157,11 +157,12 @@ class LandmarkEstimator:
         if frame_id != self._frame_id:
             self._frame_id = frame_id
             self._frames += 1
+        elif not wait:  # decided at this frame's first call: an update ready only since is the next
+            return None  # frame's (a caller that takes it over before process() would miss it)
         if self._pending is None:
             return None
-        at, keyframes, start = self._pending
+        at, keyframes, lag = self._pending
         b = self.backend_settings
-        lag = b.start_lag_frames if start else b.lag_frames
         due = self._frames - at >= lag or (b.apply_when_ready and self._remote.ready())
         if not (wait or due):
             return None
@@ -267,7 +268,7 @@ class LandmarkEstimator:
         if self._remote is not None:
             self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, tuple(matches)), None,
                                 self._samples(frame_id, timestamp))
-            self._pending = (self._frames, ((int(frame_id), features, camera, kp),), False)
+            self._pending = (self._frames, ((int(frame_id), features, camera, kp),), self.backend_settings.lag_frames)
             return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
                                   landed=landed)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
@@ -306,7 +307,7 @@ class LandmarkEstimator:
         self._keep_features(frame_id, features)
         return update
 
-    def submit_keyframes(self, keyframes: Sequence[tuple]) -> None:
+    def submit_keyframes(self, keyframes: Sequence[tuple], lag: int | None = None) -> None:
         """Send the first keyframes of an empty window to the worker in one batch (e.g. a VIO
         initialisation's), bypassing the policy; returns at once. :meth:`land` takes them over
         ``start_lag_frames`` frames later (:attr:`landed_updates`: one update each, up to the
@@ -316,6 +317,7 @@ class LandmarkEstimator:
             keyframes: ``(frame_id, timestamp, camera, T_w_c, features, matches, initial)``
                 each, in order (:meth:`insert_keyframe`'s arguments); ``matches`` with
                 keyframes of the window once the earlier ones are in.
+            lag: frames until they are due (default ``start_lag_frames``).
         """
         if self._remote is None:
             raise InputError("landmarks: submit_keyframes needs the window in a worker process")
@@ -331,7 +333,7 @@ class LandmarkEstimator:
             kept.append((int(frame_id), features, camera, kp))
             before = float(timestamp)
         self._remote.submit_batch(batch)
-        self._pending = (self._frames, tuple(kept), True)
+        self._pending = (self._frames, tuple(kept), self.backend_settings.start_lag_frames if lag is None else int(lag))
 
     def _keyframe_input(self, frame_id, timestamp, camera, T_w_c, keypoints, matches) -> KeyframeInput:
         if self._provides_poses:

@@ -237,22 +237,32 @@ class WindowBackendSettings:
             (docs/benchmarks.md "The landmark window in a worker process"); SIFT's frames,
             matched against keyframe descriptors, lose accuracy with a long lag (2: ASL sample
             ATE 7.1 vs 6.7 mm; 6: 13.8 mm).
-        start_lag_frames: frames after an initialisation at which the window built from its
-            keyframes in the worker is taken over (waiting for it then if it is not ready);
+        start_lag_frames: frames after an initialisation (for a dynamic one run in the worker:
+            after the frame that submitted it, at least one after its take-over) at which the
+            window built from its keyframes in the worker is taken over (waiting for it then if
+            it is not ready);
             the frames meanwhile are not posed (``initialising``). 0: the initialisation's
             frame waits for it, as inline. The default 20 (one second at 20 Hz) covers the
             worker's start (its interpreter imports the pipeline: 1-3 s on two cores, while
             the first frames are read) and a six-keyframe start (~1.2 s; docs/benchmarks.md).
-        apply_when_ready: take an update (a start's too) over as soon as it is ready, at the
-            first frame after it (still at the latest ``lag_frames`` / ``start_lag_frames``
-            after it): lower latency and more keyframes on a fast machine, but the result
-            depends on timing -- off for reproducible runs and tests.
+        init_lag_frames: frames after a VIO's dynamic initialisation attempt (the visual
+            reconstruction and the IMU alignment, ~0.4 s on the ASL sample), run in the worker,
+            at which its outcome is taken over (waiting for it then if it is not ready); the
+            frames meanwhile keep initialising (and collecting candidates). 0: the attempt's
+            frame waits for it (the synchronous start's outcome). The default 10 (0.5 s at
+            20 Hz) covers the attempt beside the tracking on two cores.
+        apply_when_ready: take an update (a start's and an initialisation attempt's too) over as
+            soon as it is ready, at the first frame after it (still at the latest ``lag_frames`` /
+            ``start_lag_frames`` / ``init_lag_frames`` after it): lower latency and more
+            keyframes on a fast machine, but the result depends on timing -- off for
+            reproducible runs and tests.
     """
 
     kind: str = "inline"
     lag_frames: int = 6
     apply_when_ready: bool = False
     start_lag_frames: int = 20
+    init_lag_frames: int = 10
 
     def __post_init__(self):
         if self.kind not in WINDOW_BACKENDS:
@@ -261,3 +271,5 @@ class WindowBackendSettings:
             raise SettingsError("window backend lag_frames must be an integer >= 1")
         if not (isinstance(self.start_lag_frames, int) and self.start_lag_frames >= 0):
             raise SettingsError("window backend start_lag_frames must be an integer >= 0")
+        if not (isinstance(self.init_lag_frames, int) and self.init_lag_frames >= 0):
+            raise SettingsError("window backend init_lag_frames must be an integer >= 0")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -59,6 +60,19 @@ class RescalerSettings:
             (the default) fits every point. Corners (``--matcher klt``) sit on edges: 0.1
             there.
         spread_radius_px: the half-size of that window, pixels.
+        shared_error_confidence: the probability with which the error the points share (their
+            pose's, the odometry's scale: ``AffineFit.shared_covariance``) must stay within
+            ``max_fit_error``, or None (the default: only the mean is bounded). That
+            error is **one draw for the whole map**: it does not average over the pixels, so
+            a frame's error is that draw, not its mean -- a frame whose shared error has a
+            1-sigma of 3.7 % passes a bound of 0.03 on the mean (0.8 sigma) but is off by
+            more than 4.4 % one time in four. A frame (and a scale-only fallback, which
+            uses this frame's points) is written only when ``z sigma_shared <= max_fit_error``
+            at the map's median pixel, ``z`` the two-sided normal quantile of this
+            probability (0.9: z = 1.645; docs/error_model.md section 5). Off by default: at 0.9
+            it removes the street drive's wrong frames with the odometry's window in a worker,
+            but refuses 62 of the room's 102 frames with ``--poses imu``, whose stated IMU
+            covariance is far above its actual error (SIMULATED exact IMU).
     """
 
     ransac: RansacSettings = RansacSettings()
@@ -69,6 +83,7 @@ class RescalerSettings:
     max_fallback_error: float | None = None
     max_disparity_spread: float | None = None
     spread_radius_px: int = 3
+    shared_error_confidence: float | None = None
 
     def __post_init__(self):
         if self.max_fallback_age < 1:
@@ -80,11 +95,21 @@ class RescalerSettings:
                 or self.spread_radius_px < 1:
             raise SettingsError(f"RescalerSettings.spread_radius_px must be an integer >= 1, got "
                                 f"{self.spread_radius_px!r}")
+        if self.shared_error_confidence is not None and not 0 < self.shared_error_confidence < 1:
+            raise SettingsError(f"RescalerSettings.shared_error_confidence must be in (0, 1) or None, got "
+                                f"{self.shared_error_confidence!r}")
         if self.max_fallback_error is not None:
             require_positive(self, "max_fallback_error", finite=False)
             if self.max_fallback_error > self.max_fit_error:
                 raise SettingsError(f"RescalerSettings.max_fallback_error ({self.max_fallback_error!r}) must not "
                                     f"exceed max_fit_error ({self.max_fit_error!r}): a fallback obeys the same bound")
+
+    @property
+    def shared_error_sigmas(self) -> float:
+        """``z``: sigmas of the shared error that must fit within ``max_fit_error`` (0: off)."""
+        if self.shared_error_confidence is None:
+            return 0.0
+        return float(NormalDist().inv_cdf(0.5 + 0.5 * self.shared_error_confidence))
 
     @property
     def fallback_bound(self) -> float:
@@ -204,6 +229,8 @@ class Rescaler:
         self._frame = -1
         self._last_ok_frame: int | None = None
         self._last_ok_fit: AffineFit | None = None
+        self._last_ok_anchors: tuple[float, float] | None = None  # the last OK frame's anchors
+        self._last_ok_map_anchors = False  # ... came from a disparity map (not the points)
         self._last_used_frame: int | None = None
         self._last_used_fit: AffineFit | None = None
         self._last_used_anchors: tuple[float, float] | None = None
@@ -265,9 +292,8 @@ class Rescaler:
         reasons = [f"fit {raw.status.value}: {raw.reason}"]
         own_error = own_abs_rel = None
         pose_error = None
-        if raw.ok and np.any(raw.shared_covariance):
-            pose_error = self._predicted_error(raw, disparity_map, anchors, covariance=raw.shared_covariance)
         if raw.ok:
+            pose_error = self._shared_error(raw, disparity_map, anchors)
             used = raw
             reason = raw.reason
             if estimate is not None and anchors is not None:
@@ -279,16 +305,21 @@ class Rescaler:
                 # (the same keyframes and poses): that part of this frame's fit stays
                 error = max(error, pose_error)
             abs_rel = self._predicted_error(used, disparity_map, anchors, extra=raw.model_relative_sd)
-            if error <= s.max_fit_error:
+            shared_why = self._shared_too_large(pose_error)
+            if error <= s.max_fit_error and not shared_why:
                 self._last_ok_frame = self._frame
                 self._last_ok_fit = used
+                self._last_ok_anchors, self._last_ok_map_anchors = anchors, disparity_map is not None
                 self._use(used, anchors, disparity_map)
                 return RescaleResult(FitSource.FRAME, used, raw, filtered=estimate, reason=reason,
                                      predicted_error=error, predicted_abs_rel=abs_rel, predicted_pose_error=pose_error)
             own_error, own_abs_rel = error, abs_rel
-            why = f"predicted relative depth error {error:.3g} > max_fit_error {s.max_fit_error:g}"
-            if pose_error is not None and pose_error >= 0.5 * error:
-                why += f" (the points' pose uncertainty alone: {pose_error:.3g})"
+            if error <= s.max_fit_error:
+                why = shared_why
+            else:
+                why = f"predicted relative depth error {error:.3g} > max_fit_error {s.max_fit_error:g}"
+                if pose_error is not None and pose_error >= 0.5 * error:
+                    why += f" (the points' pose uncertainty alone: {pose_error:.3g})"
             reasons = [f"fit uncertain: {why}"]
         bound = s.fallback_bound
         age_ok = None if self._last_ok_frame is None else self._frame - self._last_ok_frame
@@ -299,16 +330,18 @@ class Rescaler:
         elif age_ok > s.max_fallback_age:
             reasons.append(f"last good frame is {age_ok} frames old (> max_fallback_age {s.max_fallback_age})")
         else:
-            prev = self._last_ok_fit
-            beta_var = float(prev.covariance[1, 1]) if np.isfinite(prev.covariance[1, 1]) else 0.0
-            scale = fit_scale_only(d, depth, prev.beta, beta_var, sigma_depth, weights, s.ransac,
+            beta, beta_var = self._carried_beta(age_ok, disparity_map)
+            scale = fit_scale_only(d, depth, beta, beta_var, sigma_depth, weights, s.ransac,
                                    depth_shared=depth_shared)
             if scale.ok:
                 anchors = self._anchors(d, scale.inliers, disparity_map)
                 error = self._predicted_error(scale, disparity_map, anchors)
                 abs_rel = self._predicted_error(scale, disparity_map, anchors, extra=scale.model_relative_sd)
-                reasons.append(f"scale-only fit with beta of frame {self._last_ok_frame}: {scale.reason}")
-                if error <= bound:
+                reasons.append(f"scale-only fit with beta carried from frame {self._last_ok_frame}: {scale.reason}")
+                shared_why = self._shared_too_large(self._shared_error(scale, disparity_map, anchors))
+                if shared_why:
+                    reasons.append(f"scale-only fit: {shared_why}")
+                if error <= bound and not shared_why:
                     self._use(scale, anchors, disparity_map)
                     return RescaleResult(FitSource.SCALE_ONLY, scale, raw, scale_only=scale, filtered=estimate,
                                          reason="; ".join(reasons), predicted_error=error, predicted_abs_rel=abs_rel,
@@ -329,6 +362,23 @@ class Rescaler:
         return RescaleResult(FitSource.NONE, None, raw, filtered=estimate, reason="; ".join(reasons),
                              predicted_error=own_error, predicted_abs_rel=own_abs_rel, predicted_pose_error=pose_error)
 
+    def _carried_beta(self, age: int, disparity_map) -> tuple[float, float]:
+        """``(beta, variance)`` of the last OK frame's fit carried ``age`` frames to this frame
+        (:func:`~vio_depth.rescale.temporal.carry_fit`: re-expressed through this frame's
+        anchors, its variance grown by the process model, as the previous-fit fallback does;
+        the beta of another frame's normalisation, reused unchanged, was 12 % off on a street
+        frame that a variance not grown called 0.028)."""
+        prev, then = self._last_ok_fit, self._last_ok_anchors
+        cov = prev.covariance if np.all(np.isfinite(prev.covariance)) else np.zeros((2, 2))
+        beta = prev.beta
+        if then is not None:
+            now = self._anchors(np.zeros(0), np.zeros(0, bool), disparity_map) if disparity_map is not None else None
+            if now is not None and self._last_ok_map_anchors:
+                _, beta, cov = carry_fit(prev.alpha, prev.beta, cov, age, then, now, self._process)
+            else:
+                cov = inflate_covariance(prev.alpha, prev.beta, cov, age, then, self._process)
+        return float(beta), float(cov[1, 1])
+
     def _carried(self, age: int, disparity_map) -> tuple[AffineFit, str]:
         """The last used fit for this frame, and how it was obtained (for the reason)."""
         used = self._last_used_fit
@@ -341,6 +391,27 @@ class Rescaler:
             cov = inflate_covariance(used.alpha, used.beta, used.covariance, age, then, self._process)
             return replace(used, covariance=cov), "reused unchanged (no disparity map to carry it)"
         return used, "reused unchanged"
+
+    def _shared_error(self, fit: AffineFit, disparity_map, anchors) -> float | None:
+        """The predicted mean error of ``fit`` from the errors its points share, or None without any."""
+        shared = fit.shared_covariance
+        if not (np.all(np.isfinite(shared)) and np.any(shared)):
+            return None
+        return self._predicted_error(fit, disparity_map, anchors, covariance=shared)
+
+    def _shared_too_large(self, shared_error: float | None) -> str:
+        """Why the shared error's quantile (:attr:`RescalerSettings.shared_error_confidence`) exceeds
+        ``max_fit_error``, or "" (within it, or no such error, or the check off)."""
+        s = self.settings
+        z = s.shared_error_sigmas
+        if shared_error is None or z == 0:
+            return ""
+        sigma = shared_error / np.sqrt(2.0 / np.pi)  # E|e| = sqrt(2/pi) sigma
+        if z * sigma <= s.max_fit_error:
+            return ""
+        return (f"the error the points share (pose, scale: one draw for the whole map) is {sigma:.3g} (1-sigma): "
+                f"{z:.2f} sigma > max_fit_error {s.max_fit_error:g} (shared_error_confidence "
+                f"{s.shared_error_confidence:g})")
 
     def _predicted_error(self, fit: AffineFit, disparity_map, anchors, covariance=None, extra: float = 0.0) -> float:
         """Predicted mean relative depth error of ``fit`` (with ``covariance`` instead of its

@@ -167,6 +167,7 @@ SETTING_RANGES: dict[str, str] = {
     "RestSettings.accel_bias_sigma": "(0, inf)",
     "WindowBackendSettings.lag_frames": "[1, 1000]",
     "WindowBackendSettings.start_lag_frames": "[0, 1000]",
+    "WindowBackendSettings.init_lag_frames": "[0, 1000]",
     "RestSettings.gyro_bias_sigma": "(0, inf)",
     "RestSettings.min_imu_s": "(0, inf)",
     "RestSettings.imu_block_s": "(0, inf)",

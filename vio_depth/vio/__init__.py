@@ -22,9 +22,11 @@ importing this package registers nothing). docs/vio.md says what it needs and wh
 
 from .alignment import Alignment, align, estimate_gyro_bias
 from .bridge import FrameBridges
+from .dynamic_start import DynamicAttempt, DynamicOutcome, attempt_dynamic
 from .estimator import VioEstimator, VioFrame, VioStatus
 from .history import PoseHistory, PoseRecord
 from .imu_factors import ImuFactors, KeyframeState
+from .init_remote import RemoteInitializer
 from .initializer import Candidate, Initializer, InitKind, InitResult
 from .rest import (AnchorMotion, RestAnchor, RestDetector, RestTest, anchor_motion, gyro_rotation_sigma,
                    zero_velocity_chi2)
@@ -36,6 +38,8 @@ __all__ = [
     "Alignment",
     "AnchorMotion",
     "Candidate",
+    "DynamicAttempt",
+    "DynamicOutcome",
     "FrameBridges",
     "ImuFactors",
     "InitKind",
@@ -44,6 +48,7 @@ __all__ = [
     "KeyframeState",
     "PoseHistory",
     "PoseRecord",
+    "RemoteInitializer",
     "RestAnchor",
     "RestDetector",
     "RestSettings",
@@ -58,6 +63,7 @@ __all__ = [
     "VioStatus",
     "align",
     "anchor_motion",
+    "attempt_dynamic",
     "estimate_gyro_bias",
     "gyro_rotation_sigma",
     "reconstruct",

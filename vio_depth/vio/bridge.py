@@ -47,7 +47,9 @@ class FrameBridges:
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
-        (``(id, t seconds)`` each); a frame between two keyframes is bridged between them."""
+        (``(id, t seconds)`` each); a frame between two keyframes is bridged between them, one
+        after the newest keyframe (offered while the initialisation ran in a worker process)
+        follows that keyframe (:meth:`add`)."""
         self._bridged, self._unbridged = [], []
         self._pims, self._motion_cov = {}, {}
         for f, t in frames:
@@ -55,6 +57,8 @@ class FrameBridges:
             after = [k for k, kt in keyframes if kt > t]
             if before and after:
                 self._bridged.append((f, t, before[-1], after[0]))
+            elif before:
+                self.add(f, t, before[-1])
 
     def add(self, frame_id: int, t: float, keyframe: int) -> None:
         """Frame ``frame_id`` at ``t`` seconds follows ``keyframe`` (the newest); it is bridged once

@@ -43,10 +43,9 @@ window is built there too, taken over ``start_lag_frames`` later (the frames bet
 
 from __future__ import annotations
 
-import enum
 import functools
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -63,52 +62,12 @@ from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Initializer, InitKind, InitResult
 from .landmark_feed import KEPT_FRAMES, LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher
+from .init_remote import RemoteInitializer
 from .rest import RestDetector, RestTest
 from .settings import VioSettings
+from .status import VioFrame, VioStatus
 
 log = logging.getLogger(__name__)
-
-
-class VioStatus(str, enum.Enum):
-    """The odometry's state at a frame (module docstring)."""
-
-    INITIALISING = "initialising"
-    CONVERGING = "converging"
-    TRACKING = "tracking"
-    STILL = "still"
-    IMU_ONLY = "imu_only"
-    LOST = "lost"
-
-
-@dataclass(frozen=True)
-class VioFrame:
-    """The odometry's result for one frame.
-
-    Attributes:
-        frame_id: the frame. status: :class:`VioStatus`. reason: why no pose / what is special.
-        T_w_c: (4, 4) camera-to-world, metres (None without a pose).
-        covariance: (6, 6) relative to the newest keyframe (right perturbation), or None.
-        keyframe: the frame became a keyframe of the window.
-        landmarks: landmarks the frame's pose was refined against.
-        velocity_w: (3,) m/s IMU velocity of the newest keyframe. accel_bias / gyro_bias: its biases.
-        initialised: the :class:`InitKind` on the frame that completed an initialisation, else None.
-    """
-
-    frame_id: int
-    status: VioStatus
-    reason: str = ""
-    T_w_c: np.ndarray | None = None
-    covariance: np.ndarray | None = None
-    keyframe: bool = False
-    landmarks: int = 0
-    velocity_w: np.ndarray | None = None
-    accel_bias: np.ndarray | None = None
-    gyro_bias: np.ndarray | None = None
-    initialised: InitKind | None = None
-
-    @property
-    def ok(self) -> bool:
-        return self.T_w_c is not None
 
 
 def _log_start_keyframe(u: WindowUpdate) -> None:
@@ -155,8 +114,12 @@ class VioEstimator:
         self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
         #: the worker process of the landmark window (``settings.backend.kind`` "process"), or None
         self.backend = None
+        #: offers the frames to the initializer: itself, or with the dynamic attempt in the worker
+        self._init: Initializer | RemoteInitializer = self.initializer
+        self._remote_init: RemoteInitializer | None = None
         if settings.backend.kind == "process":
             self.backend = ProcessWindow() if backend is None else backend
+            self._init = self._remote_init = RemoteInitializer(self.initializer, self.backend, settings.backend)
 
     @property
     def imu(self) -> ImuData:
@@ -183,7 +146,7 @@ class VioEstimator:
         if self.tracking:
             times += [self._times[f] for f in self.landmarks.window.keyframe_ids if f in self._times]
         else:
-            times += self.initializer.candidate_times()
+            times += self._init.candidate_times()
         if self.rest.anchor is not None:
             times.append(self.rest.anchor.t)
         return min(times)
@@ -242,7 +205,7 @@ class VioEstimator:
         log.info("vio: lost at frame %d: %s", frame_id, reason)
         self.landmarks = None
         self._starting = None
-        self.initializer.reset()
+        self._init.reset()
         self.rest.reset()
         self.session += 1
         return VioFrame(frame_id, VioStatus.LOST, f"odometry lost: {reason}; re-initialising")
@@ -285,10 +248,11 @@ class VioEstimator:
 
     def _submit_start(self, res: InitResult) -> None:
         """Send the initialisation's keyframes to the window worker; :meth:`_land_start` takes
-        the window over ``start_lag_frames`` frames later, and the frames meanwhile wait
-        (initialising)."""
+        the window over ``start_lag_frames`` frames after the initialisation (its attempt's
+        submission), at least one frame later, and the frames meanwhile wait (initialising)."""
         keyframes = self._start_keyframes(res)  # builds self.landmarks
-        self.landmarks.submit_keyframes(keyframes)
+        since = 0 if self._remote_init is None else self._remote_init.landed_after  # the attempt's
+        self.landmarks.submit_keyframes(keyframes, max(self.settings.backend.start_lag_frames - since, 1))
         self._starting = res
 
     def _land_start(self, frame_id: int) -> tuple[bool, str]:
@@ -364,14 +328,9 @@ class VioEstimator:
             if why:
                 self.initializer.refuse(why, drop_oldest=False)
                 return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
-            self._log_start(res, frame_id)
-            # this frame is tracked from the initialisation's newest keyframe; the frames since it
-            # waited unposed, so a rest (a static start's) continues from that keyframe
-            kf = res.keyframes[-1]
-            self.rest.observe(kf.frame_id, kf.t, kf.features, True)
-            return replace(self._track(int(frame_id), float(t), camera, features), initialised=res.kind)
+            return self._track_started(res, frame_id, t, camera, features)
         if not self.tracking:
-            res = self.initializer.process(frame_id, t, camera, features)
+            res = self._init.process(frame_id, t, camera, features)
             if not res.ok:
                 return VioFrame(frame_id, VioStatus.INITIALISING, res.reason)
             if self.backend is not None and s.backend.start_lag_frames > 0:
@@ -382,12 +341,23 @@ class VioEstimator:
             if why:
                 self.initializer.refuse(why, drop_oldest=False)
                 return VioFrame(frame_id, VioStatus.INITIALISING, f"initialisation refused: {why}")
+            if res.keyframes[-1].frame_id != frame_id:  # an attempt run in the worker, taken over here
+                return self._track_started(res, frame_id, t, camera, features)
             self._log_start(res, frame_id)
             st = self._newest_state()
             return self._trusted(VioFrame(frame_id, VioStatus.TRACKING, f"{res.kind.value} initialisation",
                                           self.history.pose(frame_id), np.zeros((6, 6)), True, 0, st.velocity_w,
                                           st.accel_bias, st.gyro_bias, res.kind))
         return self._track(int(frame_id), float(t), camera, features)
+
+    def _track_started(self, res: InitResult, frame_id: int, t: float, camera: Camera,
+                       features: Features) -> VioFrame:
+        """The first frame after a start whose newest keyframe is an earlier frame: tracked from
+        that keyframe; the frames since it were not (a rest, a static start's, continues from it)."""
+        self._log_start(res, frame_id)
+        kf = res.keyframes[-1]
+        self.rest.observe(kf.frame_id, kf.t, kf.features, True)
+        return replace(self._track(int(frame_id), float(t), camera, features), initialised=res.kind)
 
     def _log_start(self, res: InitResult, frame_id: int) -> None:
         al = res.alignment

@@ -35,11 +35,12 @@ from vio_core.camera import Camera
 from ..frame import ImuData
 from ..landmarks import FrameMatches
 from ..poses import StaticInitSettings, preintegrate, static_initialisation
-from .alignment import Alignment, align
+from .alignment import Alignment
+from .dynamic_start import DynamicAttempt, DynamicOutcome, attempt_dynamic
 from .imu_factors import KeyframeState
 from .matching import rotation_free_flow
 from .settings import VioSettings
-from .sfm import SfmKeyframe, SfmResult, reconstruct
+from .sfm import SfmKeyframe, SfmResult
 
 #: fewer matches with the previous candidate than this restarts the candidates
 _MIN_MATCHES = 20
@@ -77,6 +78,8 @@ class InitResult:
         frames: ``(frame id, time)`` of the other frames offered since the first keyframe,
             to be posed from the keyframes after the start.
         sfm / alignment: the dynamic start's intermediate results (diagnostics), or None.
+        attempt: (``process(..., defer=True)``) the dynamic attempt's conditions hold at this
+            frame: the caller runs it (:meth:`Initializer.attempt_inputs`).
     """
 
     ok: bool
@@ -87,6 +90,7 @@ class InitResult:
     frames: tuple[tuple[int, float], ...] = ()
     sfm: SfmResult | None = None
     alignment: Alignment | None = None
+    attempt: bool = False
 
 
 @dataclass
@@ -118,6 +122,14 @@ class Initializer:
 
     def update_samples(self, imu: ImuData) -> None:
         self.imu = imu
+
+    def candidates(self) -> tuple[Candidate, ...]:
+        """The candidate keyframes waiting, oldest first."""
+        return tuple(self._w.candidates)
+
+    def offered_frames(self) -> list[tuple[int, float]]:
+        """``(id, t)`` of the frames offered since the oldest candidate."""
+        return list(self._w.frames)
 
     def candidate_times(self) -> list[float]:
         """Seconds of the candidate keyframes waiting (their IMU is read at the next alignment)."""
@@ -169,42 +181,42 @@ class Initializer:
         return InitResult(True, InitKind.STATIC, keyframes=(replace(cur, matches=()),), states=(state,))
 
     def _dynamic(self) -> InitResult:
-        s = self.settings
+        cands = tuple(self._w.candidates)
+        return self.attempt_result(attempt_dynamic(self.attempt_inputs(), self.params), cands)
+
+    def attempt_inputs(self, imu_span: bool = False) -> DynamicAttempt:
+        """The dynamic attempt's inputs from the candidates waiting (:mod:`.dynamic_start`);
+        ``imu_span``: with the IMU samples over their span only (to send them elsewhere)."""
         cands = self._w.candidates
         ids = {c.frame_id for c in cands}
-        keyframes = [SfmKeyframe(c.frame_id, c.camera, np.asarray(c.features.keypoints, float),
-                                 tuple(m for m in c.matches if m.keyframe in ids)) for c in cands]
-        sfm = reconstruct(keyframes, min_landmarks=s.init.min_landmarks, max_residual_px=s.init.max_residual_px)
-        if not sfm.ok:
-            return InitResult(False, reason=f"dynamic initialisation refused: {sfm.reason}", sfm=sfm)
-        times = np.array([c.t for c in cands])
-        al = align(sfm.T_c0_c, times, self.imu, self.params, s.init, s.imu.max_sample_gap_s)
-        if not al.ok:
-            return InitResult(False, reason=f"dynamic initialisation refused: {al.reason}", sfm=sfm, alignment=al)
-        T_c_i = self.imu.T_c_i
-        states = []
-        for k, c in enumerate(cands):
-            states.append(KeyframeState(c.t, al.T_w_c[k] @ T_c_i, al.velocity_w[k], np.zeros(3), al.gyro_bias,
-                                        tilt_sigma=max(al.tilt_sigma, s.tilt_sigma_rad), yaw_sigma=s.gauge_yaw_sigma_rad,
-                                        position_sigma=s.gauge_sigma_m,
-                                        velocity_sigma=max(0.05, 3 * al.scale_sigma * float(
-                                            np.linalg.norm(al.velocity_w[k]))),
-                                        accel_bias_sigma=s.imu.accel_bias_prior_sigma,
-                                        gyro_bias_sigma=max(s.imu.gyro_bias_prior_sigma * 0.5, 1e-3)))
-        t0 = cands[0].t
-        frames = tuple((f, t) for f, t in self._w.frames if t > t0 and f not in ids)
-        return InitResult(True, InitKind.DYNAMIC, keyframes=tuple(cands), states=tuple(states), frames=frames, sfm=sfm,
-                          alignment=al)
+        keyframes = tuple(SfmKeyframe(c.frame_id, c.camera, np.asarray(c.features.keypoints, float),
+                                      tuple(m for m in c.matches if m.keyframe in ids)) for c in cands)
+        imu = self.imu.window(cands[0].t, cands[-1].t) if imu_span else self.imu
+        return DynamicAttempt(keyframes, np.array([c.t for c in cands]), imu, self.settings)
+
+    def attempt_result(self, out: DynamicOutcome, candidates: tuple[Candidate, ...],
+                       frames: list[tuple[int, float]] | None = None) -> InitResult:
+        """The :class:`InitResult` of an attempt over ``candidates`` (:meth:`attempt_inputs` then);
+        ``frames``: ``(id, t)`` of the frames offered (default: those since the first candidate)."""
+        if not out.ok:
+            return InitResult(False, reason=out.reason, sfm=out.sfm, alignment=out.alignment)
+        ids = {c.frame_id for c in candidates}
+        t0 = candidates[0].t
+        frames = tuple((f, t) for f, t in (self._w.frames if frames is None else frames) if t > t0 and f not in ids)
+        return InitResult(True, InitKind.DYNAMIC, keyframes=tuple(candidates), states=out.states, frames=frames,
+                          sfm=out.sfm, alignment=out.alignment)
 
     # ------------------------------------------------------------------ per frame
-    def refuse(self, reason: str, drop_oldest: bool = True) -> None:
-        """The last start was refused (``reason``); ``drop_oldest``: forget the oldest candidate."""
+    def refuse(self, reason: str, drop_oldest: bool = True, oldest: int | None = None) -> None:
+        """The last start was refused (``reason``); ``drop_oldest``: forget the oldest candidate
+        (with ``oldest``, a frame id: only while that is still the oldest)."""
         self._w.last_failure = reason
-        if drop_oldest and self._w.candidates:
+        if drop_oldest and self._w.candidates and oldest in (None, self._w.candidates[0].frame_id):
             self._w.candidates.pop(0)
 
-    def process(self, frame_id: int, t: float, camera: Camera, features: Features) -> InitResult:
-        """Offer the next frame (see the module docstring)."""
+    def process(self, frame_id: int, t: float, camera: Camera, features: Features, defer: bool = False) -> InitResult:
+        """Offer the next frame (see the module docstring); ``defer``: do not run a dynamic
+        attempt whose conditions hold, say so (``attempt``: the caller runs it elsewhere)."""
         s = self.settings.init
         w = self._w
         cur = Candidate(int(frame_id), float(t), camera, features)
@@ -247,6 +259,8 @@ class Initializer:
         if not (parallax >= min_px and s.dynamic and len(w.candidates) >= s.min_keyframes
                 and span >= s.min_duration_s):
             return InitResult(False, reason=waiting)
+        if defer:
+            return InitResult(False, reason=waiting, attempt=True)
         result = self._dynamic()
         if not result.ok:  # a reconstruction failure may come from the oldest candidate: drop it
             self.refuse(result.reason, drop_oldest=result.alignment is None)

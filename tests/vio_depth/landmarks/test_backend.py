@@ -347,3 +347,96 @@ def test_close_waits_for_the_worker_and_a_collected_window_stops_its_worker_even
     gc.collect()
     proc.join(timeout=20)
     assert not proc.is_alive()
+
+
+
+def _raising(kind: str):
+    """Raises as a failed call would (used in a thread: a spawned worker cannot import tests)."""
+    if kind == "numerical":
+        raise NumericalError("the attempt failed numerically")
+    raise InputError("the attempt's input is wrong")
+
+
+def test_a_call_runs_in_the_worker_without_blocking_and_its_result_is_waited_for(scene, worker):
+    worker.reset(SETTINGS)
+    t0 = time.perf_counter()
+    worker.submit_call(time.sleep, 0.6)  # the worker imports what it runs: stdlib / numpy here
+    submitted = time.perf_counter() - t0
+    assert worker.calling and not worker.call_ready()
+    assert submitted < 0.3, submitted  # returned at once, not after the 0.6 s
+    with pytest.raises(InputError, match="busy"):
+        worker.submit_call(time.sleep, 0.0)
+    with pytest.raises(InputError, match="being inserted"):
+        worker.submit(_keyframes(scene, [0])[0])
+    assert worker.call_result() is None
+    assert time.perf_counter() - t0 >= 0.6
+    assert not worker.calling
+    worker.submit_call(np.cumsum, np.arange(4))
+    np.testing.assert_array_equal(worker.call_result(), [0, 1, 3, 6])
+    # the window is left as it was: it goes on taking keyframes
+    update, _ = worker.insert(_keyframes(scene, [0])[0])
+    assert update.ok
+
+
+def test_a_call_s_failure_is_raised_here_and_the_worker_and_its_window_live_on(scene, worker):
+    worker.submit_call(int, "x")  # a bug (ValueError): a WorkerError with its traceback
+    with pytest.raises(WorkerError, match="ValueError"):
+        worker.call_result()
+    worker.ping()
+    # as the worker answers them (in a thread here): a NumericalError does not drop the window
+    here, there = multiprocessing.Pipe()
+    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
+    thread.start()
+    here.send(("new", SETTINGS, None))
+    assert here.recv()[0] == "ok"
+    here.send(("call", _raising, ("numerical",)))
+    assert here.recv() == ("numerical", "the attempt failed numerically")
+    here.send(("call", _raising, ("input",)))
+    kind, exc, _ = here.recv()
+    assert kind == "raise" and isinstance(exc, InputError)
+    here.send(("add", [(_keyframes(scene, [0])[0], None, None)]))
+    kind, updates, _ = here.recv()
+    assert kind == "ok" and updates[0].ok
+    here.send(("stop",))
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+def test_discard_drops_a_pending_call_and_a_reset_after_a_call_keeps_the_pipe_in_step(scene, worker):
+    worker.submit_call(np.cumsum, np.ones(200_000))  # a reply larger than the pipe's buffer
+    worker.discard()
+    assert not worker.calling
+    worker.submit_call(np.cumsum, np.ones(200_000))
+    worker.reset(SETTINGS)  # reads the call's reply first (else a deadlock)
+    update, _ = worker.insert(_keyframes(scene, [0])[0])
+    assert update.ok
+    worker.discard()  # nothing pending: returns at once
+
+
+def test_with_apply_when_ready_an_update_ready_after_the_frame_s_first_look_lands_at_the_next_frame(worker):
+    """The odometry calls ``land`` before the frame's prediction and ``process`` calls it again:
+    an update that became ready between the two must not land in the second call (the caller
+    would never see it: its keyframe missed from the odometry's history, a KeyError on the
+    SIMULATED ASL sample with ``--vio-when-ready`` on a loaded machine)."""
+    scene = make_scene(n_frames=8, n_points=250, step_m=0.12, prior_rot_deg=0.1, prior_trans_m=0.005, seed=12)
+    est = LandmarkEstimator(SETTINGS, IdMatcher(), backend=worker, backend_settings=WindowBackendSettings(
+        "process", lag_frames=50, apply_when_ready=True))
+    k = 0
+    while est.pending is None or est.pending == 0:
+        est.process(k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        k += 1
+    pending = est.pending
+    ready = worker.ready
+    try:
+        worker.ready = lambda: False  # not ready at the frame's first look
+        assert est.land(k) is None
+        worker.ready = ready
+        while not worker.ready():
+            time.sleep(0.01)
+        assert est.land(k) is None and est.pending == pending  # ready now, but this frame has decided
+        out = est.process(k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        assert out.landed is None and est.pending == pending
+        update = est.land(k + 1)  # the next frame takes it over
+        assert update is not None and update.frame_id == pending and est.pending is None
+    finally:
+        worker.ready = ready

@@ -2,7 +2,8 @@
 ``process``, vio_depth/landmarks/backend.py) on a synthetic scene of known truth: taken over
 one frame later it reproduces the inline run exactly; taken over later it stays as accurate,
 every frame keeps a pose, and runs are reproducible; an initialisation's window built in the
-worker is taken over start_lag_frames later, the frames between wait."""
+worker is taken over start_lag_frames later, the frames between wait. The dynamic attempt's
+outcome is taken over in its own frame here (``init_lag_frames`` 0; test_init_worker.py: later)."""
 
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ def inline(scene):
 
 def test_taken_over_at_the_next_frame_the_worker_reproduces_the_inline_run(scene, inline):
     _, out_inline, poses_inline = inline
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=1, start_lag_frames=0))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=1, start_lag_frames=0, init_lag_frames=0))
     assert [o.status for o in out] == [o.status for o in out_inline]
     np.testing.assert_array_equal(poses, poses_inline)  # the final history, bit for bit
     # the keyframes after the start were submitted, not inserted, by the frame itself
@@ -55,8 +56,8 @@ def test_taken_over_at_the_next_frame_the_worker_reproduces_the_inline_run(scene
 def test_taken_over_later_it_tracks_as_well_and_reproducibly(scene, inline):
     _, out_inline, _ = inline
     lag = 4
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0))
-    _, out2, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0, init_lag_frames=0))
+    _, out2, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=lag, start_lag_frames=0, init_lag_frames=0))
     np.testing.assert_array_equal(poses, poses2)
     first = next(i for i, o in enumerate(out) if o.ok)
     assert first == next(i for i, o in enumerate(out_inline) if o.ok)
@@ -79,8 +80,8 @@ def test_the_start_built_in_the_worker_is_taken_over_later_and_the_frames_betwee
     _, out_inline, _ = inline
     start = next(i for i, o in enumerate(out_inline) if o.ok)  # the inline run's initialisation frame
     lag = 5
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
-    _, _, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag, init_lag_frames=0))
+    _, _, poses2 = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag, init_lag_frames=0))
     np.testing.assert_array_equal(poses, poses2)
     assert [o.status.value for o in out[start: start + lag]] == ["initialising"] * lag
     assert all("worker" in o.reason for o in out[start: start + lag])
@@ -105,7 +106,7 @@ def test_a_static_start_built_in_the_worker_rests_from_the_take_over_on():
     frame after it was ``converging`` (scale known to 300 %) on the real EuRoC still slice."""
     scene = make_scene(duration_s=3.5, still_s=3.0, seed=2)
     lag = 8
-    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag))
+    est, out, poses = _run(scene, WindowBackendSettings("process", lag_frames=4, start_lag_frames=lag, init_lag_frames=0))
     start = next(i for i, o in enumerate(out) if "the window is being built" in o.reason)
     assert est.last_init is not None and est.last_init.kind.value == "static"
     landed = start + lag
