@@ -7,7 +7,9 @@ poses, RANSAC seed 0 and the CLI's rescaler defaults (fallbacks and temporal fil
   offline backfill on), through :func:`vio_depth.run.run_sequence`;
 * ``landmarks``: ``vio-depth run --points landmarks`` (default
   :class:`~vio_depth.landmarks.LandmarkSettings`; the pose prior is the preset of the
-  sequence's kind of poses, ``Sequence.pose_kind``; no pairing preset), the same runner.
+  sequence's kind of poses, ``Sequence.pose_kind``; no pairing preset), the same runner;
+* ``landmarks-isam2`` (only when asked for with ``--paths``): the same with
+  ``LandmarkSettings.solver = "isam2"`` (the incremental window, :mod:`vio_depth.landmarks.isam`).
 
 Datasets (a missing folder is skipped; ``--data`` points at the shared data folder):
 
@@ -101,7 +103,9 @@ DATASETS = {d.name: d for d in (
     Dataset("street", "sample_sequences/street", "kitti", "sequence", 80.0),
     Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
 )}
-PATHS = {"two-view": "sfm", "landmarks": "landmarks"}
+PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks"}
+#: landmark settings of a path beyond its points preset (``landmarks-isam2``: the iSAM2 window)
+PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}}
 
 
 def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",
@@ -110,6 +114,8 @@ def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str =
     matcher preset, ``edge_guard`` the rescaler's ``max_disparity_spread`` (``--edge-guard``) or None."""
     settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing, matcher=matcher)
     overrides = {"disparity": {"source": ds.disparity}}
+    if path in PATH_LANDMARKS:
+        overrides["landmarks"] = PATH_LANDMARKS[path]
     if edge_guard is not None:
         overrides["rescaler"] = {"max_disparity_spread": edge_guard}
     settings = PipelineSettings.from_dict(overrides, settings)

@@ -13,7 +13,11 @@ Sequences (all SIMULATED: rendered images, IMU and disparity):
 Columns: frames posed when processed, **online ATE** (positions, SE(3)-aligned by Umeyama, no
 scale correction; metres), frames with depth and their dense AbsRel against the ground-truth
 depth (not for ``asl_room``, which has none), mean ms of the ``poses`` stage and of the whole
-push. The named baseline is the **default settings**, run first in the same invocation; each
+push; ``wrong``: frames with depth whose AbsRel exceeds 2 x their own oracle (least-squares
+fit of the same disparity to the truth, :func:`~vio_depth.evaluation.metrics.oracle_fit`) +
+0.02; ``update CPU ms``: mean CPU (thread) milliseconds of the window's keyframe updates
+(``LandmarkWindow.add_keyframe``, inline) -- e.g. ``--set solver='isam2'`` against the batch
+window. The named baseline is the **default settings**, run first in the same invocation; each
 ``--set`` runs once more with ``FIELD=VALUE`` changed (a field of ``VioSettings.window``,
 i.e. ``LandmarkSettings``, or else of ``VioSettings``).
 
@@ -43,7 +47,8 @@ from bench_realtime import DEFAULT_CACHE  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
 from vio_depth.disparity import FileDisparity, SimulatedDisparitySource  # noqa: E402
 from vio_depth.evaluation import umeyama_alignment  # noqa: E402
-from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
+from vio_depth.evaluation.metrics import oracle_fit  # noqa: E402
+from vio_depth.landmarks import LandmarkWindow, WindowBackendSettings  # noqa: E402
 
 SEQUENCES = {"asl_room": ("indoor", None), "room": ("indoor", 10.0), "street": (None, 80.0)}
 
@@ -87,7 +92,18 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
     stream = FrameStream(seq.camera, with_changes(settings, changes), imu_calibration=seq.imu,
                          pose_kind=seq.pose_kind)
     imu, done = seq.imu, -np.inf
-    est, ref, abs_rel, poses_s, total_s = [], [], [], [], []
+    est, ref, abs_rel, poses_s, total_s, wrong = [], [], [], [], [], 0
+    # CPU seconds of the window's keyframe updates (inline: in the calling thread)
+    update_cpu, add_keyframe = [], LandmarkWindow.add_keyframe
+
+    def timed(self, *args, **kwargs):
+        start = time.thread_time()
+        try:
+            return add_keyframe(self, *args, **kwargs)
+        finally:
+            update_cpu.append(time.thread_time() - start)
+
+    LandmarkWindow.add_keyframe = timed
     for i in range(len(seq)):
         frame = seq[i]
         new = (imu.t > done) & (imu.t <= frame.timestamp)
@@ -105,7 +121,12 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
         if r.depth is not None and gt is not None:
             m = np.isfinite(r.depth) & (gt > 0) & (gt < max_depth)
             abs_rel.append(float(np.mean(np.abs(r.depth[m] - gt[m]) / gt[m])))
-    return {"posed": f"{len(est)}/{len(seq)}",
+            fit = oracle_fit(d, gt, max_depth=max_depth)
+            oracle = 1.0 / np.maximum(fit.alpha * d[m] + fit.beta, 1e-9)
+            wrong += abs_rel[-1] > 2 * float(np.nanmean(np.abs(oracle - gt[m]) / gt[m])) + 0.02
+    LandmarkWindow.add_keyframe = add_keyframe
+    return {"wrong": wrong, "updates": len(update_cpu),
+            "update_cpu_ms": 1000 * float(np.mean(update_cpu)) if update_cpu else float("nan"),"posed": f"{len(est)}/{len(seq)}",
             "ate_mm": 1000 * aligned_ate(np.array(est), np.array(ref)) if len(est) >= 3 else float("nan"),
             "depth": len(abs_rel), "abs_rel": float(np.mean(abs_rel)) if abs_rel else float("nan"),
             "poses_ms": 1000 * float(np.mean(poses_s)), "total_ms": 1000 * float(np.mean(total_s))}
@@ -141,13 +162,15 @@ def main(argv=None) -> int:
             parser.error(str(error))
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.1f} at start; --matcher {args.matcher}; all sequences SIMULATED")
-    print("\n| sequence | settings | posed online | ATE mm | frames with depth | AbsRel | poses ms | total ms |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("\n| sequence | settings | posed online | ATE mm | frames with depth | AbsRel | wrong | poses ms | total ms "
+          "| keyframe updates | update CPU ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in names:
         for label, changes in variants:
             r = run(name, args.matcher, changes, args.cache)
             print(f"| {name} | {label} | {r['posed']} | {r['ate_mm']:.1f} | {r['depth']} | {r['abs_rel']:.4f} | "
-                  f"{r['poses_ms']:.1f} | {r['total_ms']:.1f} |", flush=True)
+                  f"{r['wrong']} | {r['poses_ms']:.1f} | {r['total_ms']:.1f} | {r['updates']} | "
+                  f"{r['update_cpu_ms']:.1f} |", flush=True)
     return 0
 
 

@@ -26,6 +26,7 @@ from .marginalisation import marginalise_factors
 from .motion import MotionFactors, MotionFactorSource, PosePriorFactors
 from .resection import PoseRefinement, refine_pose
 from .settings import (
+    LANDMARK_SOLVERS,
     POSE_PRIOR_PRESETS,
     WINDOW_BACKENDS,
     LandmarkSettings,
@@ -39,6 +40,7 @@ from .types import KeyframeInput, LandmarkPoints, UpdateStatus, WindowUpdate, Wo
 from .window import LandmarkWindow
 
 __all__ = [
+    "LANDMARK_SOLVERS",
     "POSE_PRIOR_PRESETS",
     "WINDOW_BACKENDS",
     "FrameLandmarks",

@@ -111,6 +111,10 @@ def pose_prior_preset(name: str, **overrides) -> PosePriorSettings:
     return replace(POSE_PRIOR_PRESETS[name], **overrides)
 
 
+#: how a keyframe refines the landmark window (:attr:`LandmarkSettings.solver`)
+LANDMARK_SOLVERS = ("batch", "isam2")
+
+
 @dataclass(frozen=True)
 class LandmarkSettings:
     """Everything that shapes the landmark estimator (one default for indoors and outdoors).
@@ -162,10 +166,16 @@ class LandmarkSettings:
             estimate is not worth another full linear solve of the window.
         restart_from_priors: with pose priors on every keyframe, each refinement starts
             from the priors instead of the previous estimate (robust to a window that went
-            astray; costs a few more iterations).
+            astray; costs a few more iterations). The batch solver only: iSAM2 keeps its
+            linearisation point.
         query_max_iterations: Gauss-Newton iterations of a frame's pose refinement.
         min_query_points: fewer associated landmarks than this -> the frame's pose is
             not refined (its prior is used) and it is reported.
+        solver: how a keyframe refines the window (:data:`LANDMARK_SOLVERS`): ``"batch"``
+            (the default) re-solves the whole window from scratch by Levenberg-Marquardt,
+            then ``gtsam.Marginals`` (:mod:`.graph`); ``"isam2"`` updates gtsam's iSAM2 with
+            the keyframe's changes only (:mod:`.isam`; docs/benchmarks.md "Incremental
+            window (iSAM2)").
     """
 
     pose_prior: PosePriorSettings | None = None
@@ -185,8 +195,11 @@ class LandmarkSettings:
     restart_from_priors: bool = True
     query_max_iterations: int = 5
     min_query_points: int = 12
+    solver: str = "batch"
 
     def __post_init__(self):
+        if self.solver not in LANDMARK_SOLVERS:
+            raise UnknownNameError("landmark solver", self.solver, LANDMARK_SOLVERS)
         if self.window_keyframes < 2 or self.match_keyframes < 1 or self.refresh_keyframes < 1:
             raise SettingsError("window_keyframes must be >= 2, match_keyframes and refresh_keyframes >= 1")
         if self.min_track_length < 2:

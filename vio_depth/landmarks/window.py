@@ -18,7 +18,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
    become ``Point3`` landmarks with ``GenericProjectionFactorCal3DS2`` factors (raw pixels,
    the camera's distortion; Huber kernel);
 4. Levenberg-Marquardt refines poses and landmarks together (:mod:`.graph`); the scale is
-   held by the priors (or the motion factors), never by the images;
+   held by the priors (or the motion factors), never by the images. With
+   ``settings.solver = "isam2"`` gtsam's iSAM2 takes only the keyframe's changes instead
+   (:mod:`.isam`);
 5. the keyframe poses' joint marginal covariance comes from ``gtsam.Marginals``
    (bookkeeping: :mod:`.covariance`), and each
    landmark's point, covariance and depth (with sigma) in every keyframe observing it
@@ -61,6 +63,7 @@ from vio_core.geometry import invert_transform
 from .covariance import PoseCovariances, prior_covariance
 from .graph import WindowGraph, select_landmarks
 from .incremental import merge_points, reusable_tracks
+from .isam import IsamGraph
 from .motion import MotionFactorSource, PosePriorFactors
 from .query import query_frame
 from .settings import LandmarkSettings
@@ -100,7 +103,7 @@ class LandmarkWindow:
         self.motion_factors: MotionFactorSource = motion_factors
         self.tracks = TrackTable()
         self._kf: OrderedDict[int, _Keyframe] = OrderedDict()
-        self._graph = WindowGraph()
+        self._graph = IsamGraph() if settings.solver == "isam2" else WindowGraph()
         self._cov = PoseCovariances()
         self._landmarks: MultiviewPoints | None = None
         self._obs: Observations | None = None  # observations behind self._landmarks
