@@ -128,8 +128,9 @@ def test_landmarks_with_imu_poses_use_their_covariance():
     seq = open_sequence(STREET)
     pipe = Pipeline(PipelineSettings.from_presets(points="landmarks", poses="imu"), sequence=seq)
     assert isinstance(pipe.points, SourceLandmarkPoints)
-    # the first landmarks come with the second keyframe (frame 5 here: no backward pass)
-    results = [pipe.process(seq[i]) for i in range(10)]
+    # the first landmarks come with the second keyframe (frame 6 here since keyframe_relative_sigma
+    # 0.12; 5 at 0.15: no backward pass), the third keyframe at frame 11
+    results = [pipe.process(seq[i]) for i in range(12)]
     ok = [r for r in results if r.points.status == FrameStatus.OK]
     assert len(ok) >= 5 and sum(r.points.landmarks.keyframe for r in results) >= 3
     for r in ok:
