@@ -50,7 +50,7 @@ class PosePriorSettings:
     relative_rotation_deg: float = 0.2
     relative_translation_m: float = 0.003
     relative_translation_fraction: float = 0.02
-    relative_translation_axes: tuple = (1.0, 1.0, 1.0)
+    relative_translation_axes: tuple[float, float, float] = (1.0, 1.0, 1.0)
     absolute_on_every_keyframe: bool = True
 
     def __post_init__(self):
