@@ -191,32 +191,39 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 # --------------------------------------------------------------------------- settings
+#: flags that choose a stage's preset by name (the PipelineSettings field of the same name)
+_PRESET_FLAGS = ("matcher", "poses", "pairing", "rescaler")
+
+
 def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
-    """Defaults, then ``--config``, then the flags given on the command line.
+    """Defaults, then the preset flags (``--matcher``, ``--poses``, ``--pairing``, ``--rescaler``),
+    then ``--config`` (its stage tables refine those presets; a file naming another preset than
+    the flag is refused), then the other flags given on the command line.
 
     Raises:
         SettingsError / UnknownNameError / InputError: an invalid or inapplicable value.
     """
-    pipeline, run = PipelineSettings(), RunSettings()
+    # a preset flag picks the stage before the file is read, so that the file's table for that
+    # stage (e.g. [poses.backend] under --poses vio) refines it instead of being replaced by it
+    chosen = {family: getattr(args, family) for family in _PRESET_FLAGS if getattr(args, family) is not None}
+    pipeline, run = PipelineSettings.from_presets(**chosen), RunSettings()
     if args.config:
-        pipeline, run = load_config(args.config)
+        pipeline, run = load_config(args.config, pipeline)
+        names = pipeline.preset_names()
+        for family, name in chosen.items():
+            if PipelineSettings.from_presets(**{family: name}).preset_names()[family] != names[family]:
+                raise SettingsError(f"--{family} {name} and the config file's [{family}] preset "
+                                    f"{names[family]!r} disagree: drop one of them")
     s = pipeline
-    if args.matcher is not None:
-        s = replace(s, matcher=PRESET_FAMILIES["matcher"][args.matcher])
     if args.guided_matching:
         if not isinstance(s.matcher, SiftSettings):
             raise SettingsError(f"--guided-matching needs a nearest-neighbour matcher (sift); the "
                                 f"{type(s.matcher).__name__} matcher matches by itself")
         s = override(s, {"matcher": {"guided": {"enabled": True}}})
-    if args.poses is not None:
-        s = replace(s, poses=PRESET_FAMILIES["poses"][args.poses])
-    if args.pairing is not None or args.min_rotation is not None or args.min_translation is not None:
-        base = s.pairing if args.pairing is None else PRESET_FAMILIES["pairing"][args.pairing]
-        s = replace(s, pairing=override(base, {k: v for k, v in (("min_rotation_deg", args.min_rotation),
-                                                                  ("min_translation_m", args.min_translation))
-                                               if v is not None}, where="pairing"))
-    if args.rescaler is not None:
-        s = replace(s, rescaler=PRESET_FAMILIES["rescaler"][args.rescaler])
+    if args.min_rotation is not None or args.min_translation is not None:
+        s = replace(s, pairing=override(s.pairing, {k: v for k, v in (("min_rotation_deg", args.min_rotation),
+                                                                      ("min_translation_m", args.min_translation))
+                                                    if v is not None}, where="pairing"))
     if args.max_fit_error is not None:
         s = override(s, {"rescaler": {"max_fit_error": args.max_fit_error}})
     if args.edge_guard is not None:

@@ -89,6 +89,24 @@ def test_cli_config_dump_applies_file_then_flags(tmp_path, capsys):
     assert settings.rescaler.ransac.seed == settings.points.seed == settings.disparity.seed == 5
 
 
+def test_cli_preset_flag_is_refined_by_the_file_and_a_disagreeing_preset_is_refused(tmp_path, capsys):
+    """``--poses vio --config c.toml`` with ``[poses.backend]`` in the file: the file refines the
+    flag's preset (it used to fail, the file being read against the default pose source, and a
+    file naming the preset lost its tables to the flag's preset); a file naming another preset
+    than the flag is one error line."""
+    path = tmp_path / "c.toml"
+    path.write_text("[poses.backend]\nkind = 'process'\n\n[matcher]\nmax_features = 1234\n")
+    assert main(["config", "--dump", "--config", str(path), "--poses", "vio", "--matcher", "sift"]) == 0
+    dumped = tmp_path / "dumped.toml"
+    dumped.write_text(capsys.readouterr().out)
+    settings, _ = load_config(dumped)
+    assert settings.poses.backend.kind == "process" and settings.matcher.max_features == 1234
+    path.write_text("[poses]\npreset = 'vio'\n")
+    assert main(["config", "--dump", "--config", str(path), "--poses", "gt"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--poses gt" in err and "'vio'" in err
+
+
 def test_library_is_silent_and_cli_verbosity_shows_log_records(tmp_path, capsys, caplog):
     assert any(isinstance(h, logging.NullHandler) for h in logging.getLogger("vio_depth").handlers)
     if not (STREET / "sequence.json").exists():
