@@ -35,6 +35,19 @@ def calibration(camera: Camera):
     return gtsam.Cal3DS2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy, k1, k2, p1, p2)
 
 
+def projection_pixels(camera: Camera, uv: np.ndarray):
+    """``(pixels (N, 2), gtsam.Cal3DS2)`` for projection factors of ``uv: (N, 2)`` raw pixels:
+    the raw pixels with the camera's :func:`calibration`, or, where Cal3DS2 cannot model its
+    distortion, ideal (undistorted) pixels with a distortion-free calibration."""
+    import gtsam
+
+    cal = calibration(camera)
+    if cal is None:
+        return camera.undistort_points(uv), gtsam.Cal3DS2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy,
+                                                          0.0, 0.0, 0.0, 0.0)
+    return uv, cal
+
+
 def select_landmarks(mv: MultiviewPoints, settings: LandmarkSettings) -> np.ndarray:
     """(T,) bool: the tracks of ``mv`` that enter the refinement as landmarks.
 
@@ -177,11 +190,7 @@ class WindowGraph:
             if robust is None:
                 robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(s.huber_sigmas),
                                                         gtsam.noiseModel.Isotropic.Sigma(2, pix))
-            cal = calibration(cam)
-            uv = obs.uv[idx[sel]]
-            if cal is None:  # ideal pixels with an undistorted calibration
-                uv = cam.undistort_points(uv)
-                cal = gtsam.Cal3DS2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, 0.0, 0.0, 0.0, 0.0)
+            uv, cal = projection_pixels(cam, obs.uv[idx[sel]])
             x = X(int(f))
             sub, new = gtsam.NonlinearFactorGraph(), {}
             add = sub.add

@@ -44,7 +44,7 @@ from triangulation.multiview import MultiviewPoints
 from vio_core.camera import Camera
 from vio_core.errors import NumericalError
 
-from .graph import Refinement, WindowGraph, calibration
+from .graph import Refinement, WindowGraph, projection_pixels
 from .marginalisation import marginalise_factors
 from .settings import LandmarkSettings
 
@@ -194,11 +194,7 @@ class IsamGraph(WindowGraph):
             sel = np.nonzero(frames == f)[0]
             if not len(sel):
                 continue
-            cal = calibration(cam)
-            uv = obs.uv[rows[sel]]
-            if cal is None:  # ideal pixels with an undistorted calibration
-                uv = cam.undistort_points(uv)
-                cal = gtsam.Cal3DS2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, 0.0, 0.0, 0.0, 0.0)
+            uv, cal = projection_pixels(cam, obs.uv[rows[sel]])
             x = X(int(f))
             for i, p in zip(sel.tolist(), np.asarray(uv, float)):
                 out[i] = gtsam.GenericProjectionFactorCal3DS2(p, self._robust, x, L(keys[i][2]), cal)
