@@ -97,16 +97,26 @@ def _rgb(image: np.ndarray) -> np.ndarray:
     return np.repeat(image[:, :, None], 3, axis=2) if image.ndim == 2 else image
 
 
+def _ready(folder: Path, want: dict) -> bool:
+    """The rendering in ``folder`` was made with the settings ``want`` (its marker file says so)."""
+    try:
+        return json.loads((folder / ASL_MARKER).read_text()) == want
+    except (OSError, ValueError):
+        return False
+
+
+def _save_disparity(path: Path, depth: np.ndarray) -> None:
+    """SIMULATED disparity of a rendered ``depth: (H, W)`` metres (0: none): an affine map of the
+    true inverse depth, ``2 / depth + 0.1``, float32 .npy at ``path``."""
+    np.save(path, np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0).astype(np.float32))
+
+
 # ----------------------------------------------------------------------------- the datasets
 def asl_room(cache: Path, log=print) -> StreamData:
     """The generated ASL sample (room, SIMULATED), rendered into ``cache/asl_room`` on first use."""
     folder = cache / "asl_room"
     want = {"sample": "room", "frames": ASL_FRAMES, "scale": 1.0, "disparity": "2 / depth + 0.1", "layout": 1}
-    try:
-        ready = json.loads((folder / ASL_MARKER).read_text()) == want
-    except (OSError, ValueError):
-        ready = False
-    if not ready:
+    if not _ready(folder, want):
         _render_asl(folder, log)
         (folder / ASL_MARKER).write_text(json.dumps(want))
     return _rendered("asl_room", "generated ASL sample: room, SIMULATED images, IMU and disparity (affine map of "
@@ -140,9 +150,7 @@ def _render_asl(folder: Path, log) -> None:
     out = folder / "disparity"
     out.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(seq):
-        depth = render_depth(scene, seq.camera, T_w_c[i])
-        np.save(out / f"{frame.stem}.npy", np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0)
-                .astype(np.float32))  # SIMULATED: an affine map of the true inverse depth
+        _save_disparity(out / f"{frame.stem}.npy", render_depth(scene, seq.camera, T_w_c[i]))
 
 
 def asl_loop(cache: Path, log=print) -> StreamData:
@@ -152,20 +160,14 @@ def asl_loop(cache: Path, log=print) -> StreamData:
     folder = cache / "asl_loop"
     want = {"sample": "room", "trajectory": "loop", "frames": LOOP_FRAMES, "scale": LOOP_SCALE,
             "disparity": "2 / depth + 0.1", "layout": 1}
-    try:
-        ready = json.loads((folder / ASL_MARKER).read_text()) == want
-    except (OSError, ValueError):
-        ready = False
-    if not ready:
+    if not _ready(folder, want):
         log(f"rendering the room loop ({LOOP_FRAMES} frames, 752x564) into {folder} (once; minutes)")
         root = generate_asl_sample(folder, sample="room", n_frames=LOOP_FRAMES, scale=LOOP_SCALE, trajectory="loop",
                                    depth_dir=folder / "depth")
         out = folder / "disparity"
         out.mkdir(parents=True, exist_ok=True)
         for frame in open_sequence(root):
-            depth = np.load(folder / "depth" / f"{frame.stem}.npy")
-            np.save(out / f"{frame.stem}.npy", np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0)
-                    .astype(np.float32))  # SIMULATED: an affine map of the true inverse depth
+            _save_disparity(out / f"{frame.stem}.npy", np.load(folder / "depth" / f"{frame.stem}.npy"))
         (folder / ASL_MARKER).write_text(json.dumps(want))
     return _rendered("asl_loop", "room loop at 752x564 (generated ASL): SIMULATED images, IMU and disparity (affine "
                      "map of the true inverse depth)", folder, "vio", "indoor")

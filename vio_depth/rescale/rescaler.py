@@ -364,33 +364,33 @@ class Rescaler:
 
     def _carried_beta(self, age: int, disparity_map) -> tuple[float, float]:
         """``(beta, variance)`` of the last OK frame's fit carried ``age`` frames to this frame
-        (:func:`~vio_depth.rescale.temporal.carry_fit`: re-expressed through this frame's
-        anchors, its variance grown by the process model, as the previous-fit fallback does;
-        the beta of another frame's normalisation, reused unchanged, was 12 % off on a street
-        frame that a variance not grown called 0.028)."""
-        prev, then = self._last_ok_fit, self._last_ok_anchors
-        cov = prev.covariance if np.all(np.isfinite(prev.covariance)) else np.zeros((2, 2))
-        beta = prev.beta
-        if then is not None:
-            now = self._anchors(np.zeros(0), np.zeros(0, bool), disparity_map) if disparity_map is not None else None
-            if now is not None and self._last_ok_map_anchors:
-                _, beta, cov = carry_fit(prev.alpha, prev.beta, cov, age, then, now, self._process)
-            else:
-                cov = inflate_covariance(prev.alpha, prev.beta, cov, age, then, self._process)
-        return float(beta), float(cov[1, 1])
+        (:meth:`_carry`: re-expressed through this frame's anchors, its variance grown by the
+        process model, as the previous-fit fallback does; the beta of another frame's
+        normalisation, reused unchanged, was 12 % off on a street frame that a variance not
+        grown called 0.028)."""
+        prev = self._last_ok_fit
+        if not np.all(np.isfinite(prev.covariance)):
+            prev = replace(prev, covariance=np.zeros((2, 2)))
+        carried, _ = self._carry(prev, self._last_ok_anchors, self._last_ok_map_anchors, age, disparity_map)
+        return float(carried.beta), float(carried.covariance[1, 1])
 
     def _carried(self, age: int, disparity_map) -> tuple[AffineFit, str]:
         """The last used fit for this frame, and how it was obtained (for the reason)."""
-        used = self._last_used_fit
-        then = self._last_used_anchors
+        return self._carry(self._last_used_fit, self._last_used_anchors, self._last_used_map_anchors, age,
+                           disparity_map)
+
+    def _carry(self, fit: AffineFit, then, from_map: bool, age: int, disparity_map) -> tuple[AffineFit, str]:
+        """``fit``, made ``age`` frames ago with anchors ``then`` (from a disparity map when
+        ``from_map``), for this frame: carried through this frame's anchors when both come from
+        disparity maps, else its covariance grown by the process model; and how (for the reason)."""
         now = self._anchors(np.zeros(0), np.zeros(0, bool), disparity_map) if disparity_map is not None else None
-        if then is not None and now is not None and self._last_used_map_anchors:
-            alpha, beta, cov = carry_fit(used.alpha, used.beta, used.covariance, age, then, now, self._process)
-            return replace(used, alpha=alpha, beta=beta, covariance=cov), "carried to this frame's disparity"
+        if then is not None and now is not None and from_map:
+            alpha, beta, cov = carry_fit(fit.alpha, fit.beta, fit.covariance, age, then, now, self._process)
+            return replace(fit, alpha=alpha, beta=beta, covariance=cov), "carried to this frame's disparity"
         if then is not None:
-            cov = inflate_covariance(used.alpha, used.beta, used.covariance, age, then, self._process)
-            return replace(used, covariance=cov), "reused unchanged (no disparity map to carry it)"
-        return used, "reused unchanged"
+            cov = inflate_covariance(fit.alpha, fit.beta, fit.covariance, age, then, self._process)
+            return replace(fit, covariance=cov), "reused unchanged (no disparity map to carry it)"
+        return fit, "reused unchanged"
 
     def _shared_error(self, fit: AffineFit, disparity_map, anchors) -> float | None:
         """The predicted mean error of ``fit`` from the errors its points share, or None without any."""

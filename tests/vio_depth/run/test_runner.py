@@ -77,13 +77,18 @@ def test_config_file_round_trip_and_errors(tmp_path):
         load_config(path)
 
 
+def _dumped(flags: list[str], tmp_path, capsys):
+    """The settings ``vio-depth config --dump FLAGS`` prints, read back (it must exit 0)."""
+    assert main(["config", "--dump", *flags]) == 0
+    dumped = tmp_path / "dumped.toml"
+    dumped.write_text(capsys.readouterr().out)
+    return load_config(dumped)
+
+
 def test_cli_config_dump_applies_file_then_flags(tmp_path, capsys):
     path = tmp_path / "c.toml"
     path.write_text("[pairing]\npreset = 'indoor'\n\n[run]\nmax_eval_depth = 10.0\n")
-    assert main(["config", "--dump", "--config", str(path), "--min-translation", "0.4", "--seed", "5"]) == 0
-    dumped = tmp_path / "dumped.toml"
-    dumped.write_text(capsys.readouterr().out)
-    settings, run = load_config(dumped)
+    settings, run = _dumped(["--config", str(path), "--min-translation", "0.4", "--seed", "5"], tmp_path, capsys)
     assert settings.pairing.min_translation_m == 0.4 and settings.pairing.min_rotation_deg == 5.0
     assert run.max_eval_depth == 10.0
     assert settings.rescaler.ransac.seed == settings.points.seed == settings.disparity.seed == 5
@@ -96,10 +101,7 @@ def test_cli_preset_flag_is_refined_by_the_file_and_a_disagreeing_preset_is_refu
     than the flag is one error line."""
     path = tmp_path / "c.toml"
     path.write_text("[poses.backend]\nkind = 'process'\n\n[matcher]\nmax_features = 1234\n")
-    assert main(["config", "--dump", "--config", str(path), "--poses", "vio", "--matcher", "sift"]) == 0
-    dumped = tmp_path / "dumped.toml"
-    dumped.write_text(capsys.readouterr().out)
-    settings, _ = load_config(dumped)
+    settings, _ = _dumped(["--config", str(path), "--poses", "vio", "--matcher", "sift"], tmp_path, capsys)
     assert settings.poses.backend.kind == "process" and settings.matcher.max_features == 1234
     path.write_text("[poses]\npreset = 'vio'\n")
     assert main(["config", "--dump", "--config", str(path), "--poses", "gt"]) == 1
