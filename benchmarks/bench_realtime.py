@@ -429,7 +429,9 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
     label = matcher + ("" if edge_guard is None else f", guard {edge_guard:g}") + (
         "" if points is None else f", points {points}")
     if process_backend:
-        label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "")
+        label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "") + (
+            f", queue {backend.max_pending_keyframes}" if backend.max_pending_keyframes > 1 else "") + (
+            f", catch-up {backend.catch_up_keyframes}")
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
                peak_rss_mib(), dict(runner.statuses), label, list(runner.posed))
 
@@ -506,6 +508,12 @@ def main(argv=None) -> int:
                              "process beside the tracking; recorded-rate rows then run on the wall clock)")
     parser.add_argument("--vio-lag", type=int, default=WindowBackendSettings().lag_frames,
                         help="process backend: frames after a keyframe at which its update is taken over")
+    parser.add_argument("--vio-max-pending", type=int, default=WindowBackendSettings().max_pending_keyframes,
+                        help="process backend: keyframes queued in the worker at most (1: none chosen while one "
+                             "is pending)")
+    parser.add_argument("--vio-catch-up", type=int, default=WindowBackendSettings().catch_up_keyframes,
+                        help="process backend: candidates collected while the start's attempt ran that join its "
+                             "window")
     parser.add_argument("--vio-when-ready", action="store_true",
                         help="process backend: take an update over as soon as it is ready (timing-dependent)")
     parser.add_argument("--no-baselines", action="store_true")
@@ -522,7 +530,9 @@ def main(argv=None) -> int:
     if not vio_points or not set(vio_points) <= {"sfm", "vio"}:
         parser.error(f"unknown --vio-points {args.vio_points!r} (valid: sfm, vio)")
     try:
-        backends = [WindowBackendSettings(b, args.vio_lag, args.vio_when_ready)
+        backends = [WindowBackendSettings(b, args.vio_lag, args.vio_when_ready,
+                                          catch_up_keyframes=args.vio_catch_up,
+                                          max_pending_keyframes=args.vio_max_pending)
                     for b in args.vio_backends.split(",") if b]
     except ValueError as exc:
         parser.error(str(exc))

@@ -7,7 +7,9 @@ frames. The peers that keep up with a camera (VINS-Mono, ORB-SLAM) split trackin
 mapping; here the window lives in a **worker process**: :meth:`ProcessWindow.submit` sends
 it a keyframe and returns at once, the caller goes on tracking frames against the last
 :class:`~.snapshot.WindowSnapshot`, and :meth:`ProcessWindow.result` takes the update and
-the refined window's snapshot over (waiting for them if they are not ready).
+the refined window's snapshot over (waiting for them if they are not ready). Keyframes
+submitted before the earlier ones' results are taken queue in the worker and are inserted
+in order, one result each (a reader thread there takes requests off the pipe as they come).
 
 The worker is a fresh interpreter (``spawn``: safe beside OpenCV's and torch's threads); it
 starts once (about a second) and serves every window of its owner (:meth:`reset` starts
@@ -28,8 +30,11 @@ failures come back the same way.
 from __future__ import annotations
 
 import multiprocessing as mp
+import queue
+import threading
 import traceback
 import weakref
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 from vio_core.errors import InputError, NumericalError, VioDepthError, WorkerError
@@ -40,19 +45,40 @@ from .types import KeyframeInput, WindowUpdate
 from .window import LandmarkWindow
 
 
-def _serve(conn) -> None:
-    """The worker's loop: one reply per request, until "stop" or the pipe closes."""
-    window = None
+def _inbox(conn, inbox: queue.SimpleQueue) -> None:
+    """The worker's reader thread: every request into ``inbox`` as it arrives, so that the owner's
+    sends never wait for the window's work (the owner may send the next keyframe while the worker
+    sends a snapshot: a worker blocked in that send releases the GIL, and this thread drains
+    the pipe -- with one thread both sends would wait for each other)."""
     while True:
         try:
             msg = conn.recv()
         except (EOFError, OSError):
+            inbox.put(("stop",))
             return
         except Exception:  # a request that does not unpickle here (e.g. a class it cannot import)
-            conn.send(("crash", traceback.format_exc()))
+            inbox.put(("unreadable", traceback.format_exc()))
             continue
+        inbox.put(msg)
         if msg[0] == "stop":
             return
+
+
+def _serve(conn) -> None:
+    """The worker's loop: one reply per request, in order, until "stop" or the pipe closes."""
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
+    threading.Thread(target=_inbox, args=(conn, inbox), daemon=True, name="vio-depth-window-inbox").start()
+    window = None
+    while True:
+        msg = inbox.get()
+        if msg[0] == "stop":
+            return
+        if msg[0] == "unreadable":
+            try:
+                conn.send(("crash", msg[1]))
+            except (BrokenPipeError, OSError):
+                return
+            continue
         try:
             if msg[0] == "ping":
                 reply = ("ok", None, None)
@@ -69,6 +95,11 @@ def _serve(conn) -> None:
                 for kf, initial, samples in msg[1]:
                     if samples is not None:
                         window.motion_factors.update_samples(samples)
+                    # a queued keyframe was matched with the window as its owner saw it, and with
+                    # the keyframes queued before it: one that the window refused or has
+                    # marginalised since is no longer there to match (as inline, not matched)
+                    ids = set(window.keyframe_ids)
+                    kf = replace(kf, matches=tuple(m for m in kf.matches if m.keyframe in ids))
                     updates.append(window.add_keyframe(kf, initial))
                     if not updates[-1].ok:
                         break
@@ -117,7 +148,7 @@ class ProcessWindow:
         self._proc = ctx.Process(target=_serve, args=(child,), daemon=True, name="vio-depth-window")
         self._proc.start()
         child.close()
-        self._pending = False
+        self._pending = 0  # keyframe submissions whose replies are owed, in order
         self._calling = False  # a submit_call's reply is owed
         # replies owed by the worker before the next one waited for: resets' (short; an error in
         # one is raised, nothing else is read from them)
@@ -125,16 +156,16 @@ class ProcessWindow:
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
     @property
-    def pending(self) -> bool:
-        """A keyframe was submitted and its result not taken yet."""
+    def pending(self) -> int:
+        """Keyframe submissions whose results were not taken yet (0: none)."""
         return self._pending
 
     def ready(self) -> bool:
-        """The pending keyframe's result has arrived (never blocks; an owed reset's failure
+        """The oldest pending keyframe submission's result has arrived (never blocks; an owed reset's failure
         that has arrived is raised, as by :meth:`ping`)."""
         while self._owed and self._conn.poll():
             self._owed_reply()
-        return self._pending and not self._owed and self._conn.poll()
+        return bool(self._pending) and not self._owed and self._conn.poll()
 
     @property
     def calling(self) -> bool:
@@ -169,17 +200,18 @@ class ProcessWindow:
         return self._reply()[0]
 
     def discard(self) -> None:
-        """Wait for a pending keyframe's or call's result and drop it (a failure of it too,
+        """Wait for every pending keyframe's or call's result and drop them (failures too,
         but a :class:`WorkerError`); nothing pending: returns at once."""
-        try:
-            if self._pending:
-                self.result()
-            elif self._calling:
-                self.call_result()
-        except WorkerError:
-            raise
-        except VioDepthError:
-            pass  # what is dropped failed: nothing depends on it
+        while self._pending or self._calling:
+            try:
+                if self._pending:
+                    self.result()
+                else:
+                    self.call_result()
+            except WorkerError:
+                raise
+            except VioDepthError:
+                pass  # what is dropped failed: nothing depends on it
 
     def ping(self) -> None:
         """Wait until the worker answers (it has started and imported what it needs).
@@ -219,16 +251,18 @@ class ProcessWindow:
     def submit_batch(self, keyframes: Sequence[tuple[KeyframeInput, Any | None, Any | None]]) -> None:
         """Send keyframes ``(kf, initial, samples)`` (as :meth:`submit`'s) to be inserted in
         order, e.g. the keyframes of an initialisation; the worker stops at the first one the
-        window refuses. Returns at once."""
-        if self._pending or self._calling:
-            raise InputError("landmarks: a keyframe is already being inserted (take its result first)")
+        window refuses. Returns at once. Submissions queue in the worker: each gets its own
+        result, in order (a keyframe's matches with a queued keyframe the window then refused
+        or marginalised are dropped there)."""
+        if self._calling:
+            raise InputError("landmarks: the window worker is running a call (take its result first)")
         if not keyframes:
             raise InputError("landmarks: no keyframe to insert")
         self._send(("add", list(keyframes)))
-        self._pending = True
+        self._pending += 1
 
     def result(self) -> tuple[WindowUpdate, WindowSnapshot | None]:
-        """The pending keyframe's :class:`~.types.WindowUpdate` (of a batch: its last, which is
+        """The oldest pending submission's :class:`~.types.WindowUpdate` (of a batch: its last, which is
         the refused one if any) and the window's snapshot after it (None when the window is
         unchanged: it refused the only keyframe); waits for them.
 
@@ -245,7 +279,7 @@ class ProcessWindow:
         the first refused keyframe: that one is the last)."""
         if not self._pending:
             raise InputError("landmarks: no keyframe is being inserted")
-        self._pending = False
+        self._pending -= 1
         return self._reply()
 
     def insert(self, kf: KeyframeInput, initial: Any | None = None,

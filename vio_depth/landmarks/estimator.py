@@ -16,9 +16,12 @@ features (extracted once by the caller, as the pipeline does):
 With a :class:`~.backend.ProcessWindow` (:class:`~.settings.WindowBackendSettings` kind
 ``process``) step 3 runs in a worker process instead: the frame is answered at once from
 the window as it was (its points from step 2) and the keyframe is *submitted*; the next
-frames are matched and queried against that window too, no new keyframe is chosen, and
-the refined window is taken over ``lag_frames`` frames later (:meth:`LandmarkEstimator.land`:
-the caller may take it before a frame's own processing, e.g. to predict from it).
+frames are matched and queried against that window too, and the refined window is taken
+over ``lag_frames`` frames later (:meth:`LandmarkEstimator.land`: the caller may take it
+before a frame's own processing, e.g. to predict from it). Meanwhile no new keyframe is
+chosen -- or, with ``max_pending_keyframes`` > 1, the frames are also matched with the
+pending keyframes and step 3 tests them against the newest pending one (its pose as
+estimated when it was submitted): a keyframe chosen then is queued in the worker behind it.
 """
 
 from __future__ import annotations
@@ -46,6 +49,18 @@ from .window import LandmarkWindow
 #: median of a few hundred decides as well as one of thousands, at a fraction of the
 #: triangulation (a constant, not a setting: the settings are written into every output)
 PARALLAX_MAX_MATCHES = 300
+
+
+@dataclass(frozen=True)
+class _Submitted:
+    """Keyframes sent to the worker whose update was not taken over yet."""
+
+    at: int  # frames processed at submission
+    keyframes: tuple  # ((frame id, features, camera, keypoints), ...) in order
+    lag: int  # frames after ``at`` at which the update is due
+    timestamp: float  # seconds, of the last keyframe
+    T_w_c: np.ndarray | None = None  # (4, 4) the last keyframe's pose estimate at submission
+    tracked: int = 0  # landmarks of the window associated with it at submission
 
 
 @dataclass(frozen=True)
@@ -120,9 +135,8 @@ class LandmarkEstimator:
         self._last_tracked: int | None = None
         self._frames = 0  # frames processed (the lag of a submitted keyframe counts them)
         self._frame_id: int | None = None
-        # submitted keyframes: (frames count at submission, ((frame id, features, camera, keypoints), ...),
-        # the frames until they are due: lag_frames, or submit_keyframes' lag)
-        self._pending: tuple | None = None
+        # keyframes submitted to the worker, oldest first (their updates are taken over in order)
+        self._pending: list[_Submitted] = []
         #: every update of the keyframes taken over by the last :meth:`land` (more than one after
         #: :meth:`submit_keyframes`)
         self.landed_updates: tuple[WindowUpdate, ...] = ()
@@ -135,7 +149,7 @@ class LandmarkEstimator:
     def pending(self) -> int | None:
         """The frame id of a submitted keyframe whose update was not taken over yet (the
         newest of a batch), or None."""
-        return None if self._pending is None else self._pending[1][-1][0]
+        return self._pending[-1].keyframes[-1][0] if self._pending else None
 
     def land(self, frame_id: int, wait: bool = False) -> WindowUpdate | None:
         """Take a submitted keyframe's update over when it is due at frame ``frame_id``.
@@ -144,12 +158,15 @@ class LandmarkEstimator:
         as soon as it is ready with ``apply_when_ready``, or now with ``wait``; the keyframes
         of :meth:`submit_keyframes` the same way after ``start_lag_frames``. The refined
         window replaces the current one; its keyframe's features are kept for matching.
-        Call it (or let :meth:`process` call it) once per frame, before the frame's own
-        processing; a second call for the same ``frame_id`` returns None (without ``wait``).
+        Queued keyframes are taken over in order, at most one per frame (every pending one
+        with ``wait``). Call it (or let :meth:`process` call it) once per frame, before the
+        frame's own processing; a second call for the same ``frame_id`` returns None (without
+        ``wait``).
 
         Returns:
             The :class:`~.types.WindowUpdate` taken over (``ok`` False: the window refused the
-            keyframe and is unchanged), or None (nothing due; always None without a worker).
+            keyframe and is unchanged; with ``wait``: the last one), or None (nothing due;
+            always None without a worker).
 
         Raises:
             NumericalError: the update failed in the worker; the window is unusable.
@@ -159,16 +176,23 @@ class LandmarkEstimator:
             self._frames += 1
         elif not wait:  # decided at this frame's first call: an update ready only since is the next
             return None  # frame's (a caller that takes it over before process() would miss it)
-        if self._pending is None:
+        if not self._pending:
             return None
-        at, keyframes, lag = self._pending
+        first = self._pending[0]
         b = self.backend_settings
-        due = self._frames - at >= lag or (b.apply_when_ready and self._remote.ready())
+        due = self._frames - first.at >= first.lag or (b.apply_when_ready and self._remote.ready())
         if not (wait or due):
             return None
-        self._pending = None
+        landed: list[WindowUpdate] = []
+        while self._pending and (wait or not landed):
+            landed += self._take()
+        self.landed_updates = tuple(landed)
+        return landed[-1]
+
+    def _take(self) -> tuple[WindowUpdate, ...]:
+        """Take the oldest pending submission's updates and window over (waiting for them)."""
+        keyframes = self._pending.pop(0).keyframes
         updates, snapshot = self._remote.batch_result()
-        self.landed_updates = updates
         if snapshot is not None:
             self.window = snapshot
             inserted = keyframes[: len(updates) - (not updates[-1].ok)]
@@ -176,7 +200,7 @@ class LandmarkEstimator:
                 self._keep_features(kf_id, features)
             kf_id, _, camera, kp = inserted[-1]
             self._last_tracked = len(snapshot.query(camera, None, kp, frame_id=kf_id))
-        return updates[-1]
+        return updates
 
     def _keep_features(self, frame_id: int, features) -> None:
         """Keep a keyframe's features for matching while it is in the window."""
@@ -187,21 +211,22 @@ class LandmarkEstimator:
                 del self._features[k]
 
     def _samples(self, frame_id: int, timestamp: float):
-        """The motion source's samples for keyframe ``frame_id`` (worker only), or None."""
+        """The motion source's samples for keyframe ``frame_id`` (worker only), from the
+        keyframe the worker will have inserted last before it, or None."""
         ids = self.window.keyframe_ids
-        if self._remote is None or self._motion_samples is None or not ids:
+        if self._remote is None or self._motion_samples is None or not (ids or self._pending):
             return None
-        return self._motion_samples(self.window.keyframe(ids[-1]).timestamp, float(timestamp))
+        t0 = self._pending[-1].timestamp if self._pending else self.window.keyframe(ids[-1]).timestamp
+        return self._motion_samples(t0, float(timestamp))
 
-    def _pair_relative_sigma(self, newest: int, camera: Camera, keypoints: np.ndarray, points: LandmarkPoints,
-                             m: FrameMatches) -> float:
-        """Median predicted sigma_z/z of two-view matches with the newest keyframe, at the
-        frame's (refined) pose and its covariance relative to that keyframe."""
-        if len(m) < 5 or points.T_w_c is None or points.covariance is None:
+    def _pair_relative_sigma(self, kf_camera: Camera, T_kf, kf_uv: np.ndarray, camera: Camera,
+                             keypoints: np.ndarray, points: LandmarkPoints, m: FrameMatches) -> float:
+        """Median predicted sigma_z/z of two-view matches ``m`` with the newest keyframe (its
+        camera, pose ``T_kf`` (4, 4) camera-to-world and keypoints ``kf_uv`` (K, 2) pixels), at
+        the frame's (refined) pose and its covariance relative to that keyframe."""
+        if len(m) < 5 or points.T_w_c is None or points.covariance is None or T_kf is None:
             return float("inf")
-        w = self.window
-        kf = w.keyframe(newest)
-        T_kf, T_cur = w.pose(newest), points.T_w_c
+        T_cur = points.T_w_c
         # the pair's rotation is measured by its own matches to about sigma_px / (f sqrt(n))
         # radians whatever the prior says; the translation keeps its (prior or refined) sigma
         C_cur = points.covariance.copy()
@@ -212,8 +237,8 @@ class LandmarkEstimator:
         # a median over an evenly spaced subset of the matches (PARALLAX_MAX_MATCHES)
         pick = np.unique(np.linspace(0, len(m) - 1, min(len(m), PARALLAX_MAX_MATCHES)).astype(np.int64))
         n = len(pick)
-        uv = np.concatenate([w.tracks.keypoints(newest)[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]]])
-        res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf.camera, camera],
+        uv = np.concatenate([kf_uv[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]]])
+        res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf_camera, camera],
                                  np.stack([T_kf, T_cur]), self.settings.multiview, C)
         ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))
         if ok.sum() < 5:
@@ -249,26 +274,37 @@ class LandmarkEstimator:
                                   "first frame", 0, float("inf"), update, landed=landed)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
         matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
-        n_matches = sum(len(m) for m in matches)
         points = w.query(camera, T_w_c, kp, matches, prior_covariance=prior_covariance)
-        if self._pending is not None:  # the worker is refining the window: no new keyframe meanwhile
-            return FrameLandmarks(points, False, "", n_matches, float("inf"), frame_matches=tuple(matches),
-                                  landed=landed)
-        newest = newest_first[0]
-        rel = self._pair_relative_sigma(newest, camera, kp, points, matches[0])
+        if len(self._pending) >= self.backend_settings.max_pending_keyframes:
+            # the worker is refining the window and its queue is full: no new keyframe meanwhile
+            return FrameLandmarks(points, False, "", sum(len(m) for m in matches), float("inf"),
+                                  frame_matches=tuple(matches), landed=landed)
+        if self._pending:  # the newest keyframe is queued in the worker: matched and tested as it was sent
+            queued = [k for sub in self._pending for k in sub.keyframes][::-1][: s.match_keyframes]
+            matches = [FrameMatches.from_matches(k[0], self.matcher.match(features, k[1])) for k in queued] + matches
+            newest, _, kf_camera, kf_uv = queued[0]
+            T_kf, last_tracked = self._pending[-1].T_w_c, self._pending[-1].tracked
+        else:
+            newest, kf_camera = newest_first[0], w.keyframe(newest_first[0]).camera
+            T_kf, kf_uv, last_tracked = w.pose(newest), w.tracks.keypoints(newest), self._last_tracked
+        n_matches = sum(len(m) for m in matches)
+        rel = self._pair_relative_sigma(kf_camera, T_kf, kf_uv, camera, kp, points, matches[0])
         reason = ""
         if frame_id - newest >= s.max_keyframe_gap:
             reason = f"{frame_id - newest} frames since the newest keyframe"
         elif rel <= s.keyframe_relative_sigma:
             reason = f"parallax: two-view relative depth sigma {rel:.3f} <= {s.keyframe_relative_sigma}"
-        elif self._last_tracked and points.associated < s.keyframe_min_tracked_fraction * self._last_tracked:
-            reason = f"{points.associated} of the newest keyframe's {self._last_tracked} landmarks found"
+        elif last_tracked and points.associated < s.keyframe_min_tracked_fraction * last_tracked:
+            reason = f"{points.associated} of the newest keyframe's {last_tracked} landmarks found"
         if not reason:
             return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches), landed=landed)
         if self._remote is not None:
-            self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, tuple(matches)), None,
+            sent = tuple(matches[: s.match_keyframes])  # the newest keyframes, queued ones first (as inline)
+            self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, sent), None,
                                 self._samples(frame_id, timestamp))
-            self._pending = (self._frames, ((int(frame_id), features, camera, kp),), self.backend_settings.lag_frames)
+            self._pending.append(_Submitted(self._frames, ((int(frame_id), features, camera, kp),),
+                                            self.backend_settings.lag_frames, float(timestamp), points.T_w_c,
+                                            int(points.associated)))
             return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
                                   landed=landed)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
@@ -297,7 +333,7 @@ class LandmarkEstimator:
         if self._remote is None:
             update = self.window.add_keyframe(kf, initial)
         else:
-            if self._pending is not None:
+            if self._pending:
                 self.land(self._frame_id, wait=True)
             update, snapshot = self._remote.insert(kf, initial, self._samples(frame_id, timestamp))
             if snapshot is not None:
@@ -321,7 +357,7 @@ class LandmarkEstimator:
         """
         if self._remote is None:
             raise InputError("landmarks: submit_keyframes needs the window in a worker process")
-        if self.window.keyframe_ids or self._pending is not None:
+        if self.window.keyframe_ids or self._pending:
             raise InputError("landmarks: submit_keyframes starts an empty window")
         batch, kept, before = [], [], None
         for frame_id, timestamp, camera, T_w_c, features, matches, initial in keyframes:
@@ -333,7 +369,8 @@ class LandmarkEstimator:
             kept.append((int(frame_id), features, camera, kp))
             before = float(timestamp)
         self._remote.submit_batch(batch)
-        self._pending = (self._frames, tuple(kept), self.backend_settings.start_lag_frames if lag is None else int(lag))
+        self._pending.append(_Submitted(self._frames, tuple(kept),
+                                        self.backend_settings.start_lag_frames if lag is None else int(lag), before))
 
     def _keyframe_input(self, frame_id, timestamp, camera, T_w_c, keypoints, matches) -> KeyframeInput:
         if self._provides_poses:

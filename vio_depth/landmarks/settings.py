@@ -243,7 +243,7 @@ class WindowBackendSettings:
             peers' tracking/mapping split: VINS-Mono, ORB-SLAM): the keyframe's frame is
             answered at once from the window as it was, the following frames are tracked
             against it too, and the refined window is taken over ``lag_frames`` frames later
-            (waiting for it then if it is not ready); no new keyframe is chosen meanwhile.
+            (waiting for it then if it is not ready).
         lag_frames: frames after a keyframe at which its update is taken over (>= 1). The
             default 6 lets a ~170 ms update finish beside 20 Hz KLT tracking on two cores
             (docs/benchmarks.md "The landmark window in a worker process"); SIFT's frames,
@@ -268,6 +268,18 @@ class WindowBackendSettings:
             ``start_lag_frames`` / ``init_lag_frames`` after it): lower latency and more
             keyframes on a fast machine, but the result depends on timing -- off for
             reproducible runs and tests.
+        catch_up_keyframes: a VIO's dynamic start taken over from the worker: candidate
+            keyframes the initialisation collected after the attempt's newest keyframe (while
+            the attempt ran), up to this many, spread evenly in time, join the start's window
+            after its keyframes (posed by the IMU). 0: the first keyframe tracked after the
+            start is matched with the attempt's newest across both lags (~20 frames).
+        max_pending_keyframes: keyframes submitted to the worker and not taken over yet, at
+            most. 1: no new keyframe is chosen while one is pending (a keyframe at most every
+            ``lag_frames`` frames: at driving speed the tracks leave the view in between and
+            the window thins out). More: the policy goes on against the newest pending keyframe
+            (its matches, its pose as estimated when it was submitted) and queues the next one
+            in the worker, which inserts them in order; each is taken over ``lag_frames``
+            after its own submission. A full queue chooses no keyframe.
     """
 
     kind: str = "inline"
@@ -275,6 +287,8 @@ class WindowBackendSettings:
     apply_when_ready: bool = False
     start_lag_frames: int = 20
     init_lag_frames: int = 10
+    catch_up_keyframes: int = 2
+    max_pending_keyframes: int = 1
 
     def __post_init__(self):
         if self.kind not in WINDOW_BACKENDS:
@@ -285,3 +299,7 @@ class WindowBackendSettings:
             raise SettingsError("window backend start_lag_frames must be an integer >= 0")
         if not (isinstance(self.init_lag_frames, int) and self.init_lag_frames >= 0):
             raise SettingsError("window backend init_lag_frames must be an integer >= 0")
+        if not (isinstance(self.catch_up_keyframes, int) and self.catch_up_keyframes >= 0):
+            raise SettingsError("window backend catch_up_keyframes must be an integer >= 0")
+        if not (isinstance(self.max_pending_keyframes, int) and self.max_pending_keyframes >= 1):
+            raise SettingsError("window backend max_pending_keyframes must be an integer >= 1")

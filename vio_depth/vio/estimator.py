@@ -55,11 +55,11 @@ from vio_core.errors import InputError, NumericalError
 from vio_core.geometry import invert_transform
 
 from ..frame import ImuData
-from ..landmarks import LandmarkEstimator, ProcessWindow, WindowUpdate
+from ..landmarks import FrameMatches, LandmarkEstimator, ProcessWindow, WindowUpdate
 from .bridge import FrameBridges
 from .history import PoseHistory
 from .imu_factors import ImuFactors, KeyframeState
-from .initializer import Initializer, InitKind, InitResult
+from .initializer import Candidate, Initializer, InitKind, InitResult
 from .landmark_feed import KEPT_FRAMES, LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher
 from .init_remote import RemoteInitializer
@@ -101,6 +101,8 @@ class VioEstimator:
         self.landmarks: LandmarkEstimator | None = None
         #: an initialisation whose window the worker is building (``settings.backend.kind`` "process")
         self._starting: InitResult | None = None
+        #: candidates collected while the start's attempt ran in the worker, inserted after its keyframes
+        self._catch_up: list[Candidate] = []
         self.session = 0
         self._times: dict[int, float] = {}
         self._last_visual_t = -np.inf
@@ -230,7 +232,29 @@ class VioEstimator:
             # the initialisation's state: the first keyframe's prior, the others' initial values
             out.append((k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches, st))
             before.add(k.frame_id)
+        self._catch_up = self._catch_up_candidates(res)
+        for c in self._catch_up:  # posed by the IMU from the keyframe before (no initial state)
+            self._times[c.frame_id] = c.t
+            newest = [args for args in out[::-1][: s.window.match_keyframes]]
+            matches = tuple(FrameMatches.from_matches(a[0], self._gate.match(c.features, a[4])) for a in newest)
+            out.append((c.frame_id, c.t, c.camera, None, c.features, matches, None))
         return out
+
+    def _catch_up_candidates(self, res: InitResult) -> list[Candidate]:
+        """Candidates collected after the initialisation's newest keyframe while its attempt ran
+        in the worker process: up to ``catch_up_keyframes`` of them, spread evenly in time up
+        to the newest, join the start's window (without them the first keyframe tracked would
+        be matched across every frame of the attempt's and the window's lags: ~20 frames, and
+        on a street drive ~20 common landmarks decided the scale)."""
+        n = self.settings.backend.catch_up_keyframes
+        last = res.keyframes[-1]
+        later = [c for c in self.initializer.candidates() if c.frame_id > last.frame_id]
+        if n == 0 or not later or res.kind != InitKind.DYNAMIC:
+            return []
+        times = np.array([c.t for c in later])
+        targets = last.t + (times[-1] - last.t) * np.arange(1, n + 1) / n
+        picks = sorted({int(np.argmin(np.abs(times - g))) for g in targets})
+        return [later[i] for i in picks]
 
     def _start(self, res: InitResult) -> str:
         """Build the window from an initialisation here; "" on success, else why it was refused."""
@@ -293,11 +317,13 @@ class VioEstimator:
             return why
         # the other frames of the initialisation: posed between the keyframes around them,
         # again after every window update while those keyframes are in the window
-        self.bridges.start([(k.frame_id, k.t) for k in res.keyframes], list(res.frames))
+        keyframes = list(res.keyframes) + self._catch_up
+        ids = {k.frame_id for k in keyframes}
+        self.bridges.start([(k.frame_id, k.t) for k in keyframes], [(f, t) for f, t in res.frames if f not in ids])
         self._sync_history()
-        self._last_visual_t = res.keyframes[-1].t
+        self._last_visual_t = keyframes[-1].t
         self.landmark_log.record_window_keyframes(
-            self.landmarks, [(k.frame_id, k.camera, np.asarray(k.features.keypoints, np.float64)) for k in res.keyframes],
+            self.landmarks, [(k.frame_id, k.camera, np.asarray(k.features.keypoints, np.float64)) for k in keyframes],
             self._scale_sigma(), f"{res.kind} initialisation keyframe")
         return ""
 

@@ -118,9 +118,7 @@ def test_submit_returns_at_once_and_result_waits(scene, worker):
     kfs = _keyframes(scene, [0, 2, 4])
     worker.insert(kfs[0])
     worker.submit(kfs[1])
-    assert worker.pending
-    with pytest.raises(InputError, match="already being inserted"):
-        worker.submit(kfs[2])
+    assert worker.pending == 1
     update, snap = worker.result()
     assert update.ok and snap.keyframe_ids == [0, 2] and not worker.pending and not worker.ready()
     with pytest.raises(InputError, match="no keyframe is being inserted"):
@@ -131,6 +129,50 @@ def test_submit_returns_at_once_and_result_waits(scene, worker):
     assert not worker.pending and not worker.ready()
     update, snap = worker.insert(kfs[0])
     assert update.ok and snap.keyframe_ids == [0]
+
+
+def test_submissions_queue_in_the_worker_and_come_back_in_order(scene, worker):
+    """Keyframes submitted before the earlier results are taken are inserted in order, one
+    result each, as inserting them one by one gives; a call waits for the queue."""
+    kfs = _keyframes(scene, [0, 2, 4, 6])
+    inline = LandmarkWindow(SETTINGS)
+    here = [inline.add_keyframe(kf) for kf in kfs]
+    worker.reset(SETTINGS)
+    worker.insert(kfs[0])
+    for kf in kfs[1:]:
+        worker.submit(kf)
+    assert worker.pending == 3
+    with pytest.raises(InputError, match="busy"):
+        worker.submit_call(len, ())
+    for n, ids in enumerate([[0, 2], [0, 2, 4], [0, 2, 4, 6]], start=1):
+        update, snap = worker.result()
+        assert update.ok and snap.keyframe_ids == ids
+        assert update.lm_error_after == pytest.approx(here[n].lm_error_after, rel=1e-9)
+    assert not worker.pending
+    _assert_same_window(inline, snap)
+
+
+def test_a_queued_keyframe_loses_its_matches_with_a_keyframe_the_window_refused(scene):
+    """A keyframe queued behind one the window then refuses was matched with it: those matches
+    are dropped in the worker (the window does not have it), not an error; the rest are kept."""
+    here, there = multiprocessing.Pipe()
+    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
+    thread.start()
+    here.send(("new", SETTINGS, _RefusesKeyframe2))
+    assert here.recv()[0] == "ok"
+    kfs = _keyframes(scene, [0, 2, 4])
+    assert {m.keyframe for m in kfs[2].matches} == {0, 2}
+    for kf in kfs:
+        here.send(("add", [(kf, None, None)]))
+    replies = [here.recv() for _ in kfs]
+    assert [r[0] for r in replies] == ["ok"] * 3
+    assert replies[0][1][0].ok and not replies[1][1][0].ok and replies[2][1][0].ok
+    snap = replies[2][2]
+    assert snap.keyframe_ids == [0, 4]
+    assert len(snap.query(scene.camera, None, kfs[2].keypoints, frame_id=4)) > 50  # landmarks from its matches with 0
+    here.send(("stop",))
+    thread.join(timeout=5)
+    assert not thread.is_alive()
 
 
 def _padded(kf: KeyframeInput, n: int) -> KeyframeInput:
@@ -290,6 +332,8 @@ def test_backend_settings_are_checked():
         WindowBackendSettings("thread")
     with pytest.raises(SettingsError):
         WindowBackendSettings("process", lag_frames=0)
+    with pytest.raises(SettingsError, match="max_pending_keyframes"):
+        WindowBackendSettings("process", max_pending_keyframes=0)
 
 
 def test_the_estimator_takes_a_submitted_keyframe_over_lag_frames_later(worker):
@@ -326,6 +370,39 @@ def test_the_estimator_takes_a_submitted_keyframe_over_lag_frames_later(worker):
     if est.pending is not None:
         update = est.land(len(scene.T_w_c), wait=True)
         assert update.ok and est.window.keyframe_ids[-1] == update.frame_id
+
+
+def test_with_a_queue_the_estimator_keeps_choosing_keyframes_while_updates_are_pending(worker):
+    """``max_pending_keyframes`` > 1: keyframes are chosen against the newest pending one and
+    queued, each lands ``lag_frames`` after its own submission, in order, and the window ends
+    with the keyframes the inline estimator chose, at its poses."""
+    scene = make_scene(n_frames=16, n_points=250, step_m=0.12, prior_rot_deg=0.1, prior_trans_m=0.005, seed=12)
+    lag = 3
+    est = LandmarkEstimator(SETTINGS, IdMatcher(), backend=worker, backend_settings=WindowBackendSettings(
+        "process", lag_frames=lag, max_pending_keyframes=3))
+    inline = LandmarkEstimator(SETTINGS, IdMatcher())
+    submitted, landed, chosen = [], [], []
+    for k in range(len(scene.T_w_c)):
+        args = (k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+        out = est.process(*args)
+        if inline.process(*args).keyframe:
+            chosen.append(k)
+        if out.submitted:
+            submitted.append(k)
+            assert len(est._pending) <= 3
+        if out.landed is not None:
+            assert out.landed.ok
+            landed.append((k, out.landed.frame_id))
+        if k > lag:
+            assert len(out.points) > 50
+    assert est.land(len(scene.T_w_c), wait=True).ok
+    assert est.pending is None and not est._pending
+    assert [0] + submitted == chosen  # the same keyframes as inline: the queue never filled
+    assert len(submitted) > len(landed) >= 4 and any(k - f < lag for k, f in zip(submitted[1:], submitted))
+    assert all(k - f == lag for k, f in landed) and [f for _, f in landed] == submitted[:len(landed)]
+    assert est.window.keyframe_ids == inline.window.keyframe_ids
+    for f in est.window.keyframe_ids:
+        np.testing.assert_allclose(est.window.pose(f), inline.window.pose(f), atol=1e-6)
 
 
 def test_close_waits_for_the_worker_and_a_collected_window_stops_its_worker_even_mid_reply(scene):
@@ -366,7 +443,7 @@ def test_a_call_runs_in_the_worker_without_blocking_and_its_result_is_waited_for
     assert submitted < 0.3, submitted  # returned at once, not after the 0.6 s
     with pytest.raises(InputError, match="busy"):
         worker.submit_call(time.sleep, 0.0)
-    with pytest.raises(InputError, match="being inserted"):
+    with pytest.raises(InputError, match="running a call"):
         worker.submit(_keyframes(scene, [0])[0])
     assert worker.call_result() is None
     assert time.perf_counter() - t0 >= 0.6

@@ -126,3 +126,37 @@ def test_a_refused_attempt_keeps_the_candidates_and_the_next_one_is_submitted(sc
     assert est._init.submitted >= 3
     # an alignment's refusal does not drop the oldest candidate (as inline)
     assert est.initializer.candidates()[0].frame_id == 0
+
+
+def test_candidates_collected_while_the_attempt_ran_join_the_start_s_window(scene):
+    """``catch_up_keyframes``: the candidates the initialisation collected after the attempt's
+    newest keyframe (while it ran in the worker) join the start's window after its keyframes,
+    spread evenly up to the newest, so the first keyframe tracked is not matched across both
+    lags; 0 leaves the gap. Every frame is posed either way, and the trajectory holds."""
+    runs = {}
+    for n in (0, 2):
+        backend = WindowBackendSettings("process", lag_frames=4, start_lag_frames=20, init_lag_frames=10,
+                                        catch_up_keyframes=n)
+        runs[n] = _run(scene, backend)
+    est0, out0, poses0, _ = runs[0]
+    est2, out2, poses2, _ = runs[2]
+    newest = est2.last_init.keyframes[-1].frame_id
+    first = next(i for i, o in enumerate(out2) if o.initialised is not None)
+    assert first == next(i for i, o in enumerate(out0) if o.initialised is not None)
+    first_id = scene.frames[first].index
+    assert est0._catch_up == [] and len(est2._catch_up) == 2
+    caught = [c.frame_id for c in est2._catch_up]
+    assert newest < caught[0] < caught[1] < first_id
+    # spread evenly: the first about half-way in time between the attempt's newest and the last
+    t0, (ta, tb) = est2.last_init.keyframes[-1].t, [c.t for c in est2._catch_up]
+    assert 0.25 < (ta - t0) / (tb - t0) < 0.75
+    ids0, ids2 = est0.landmarks.window.keyframe_ids, est2.landmarks.window.keyframe_ids
+    assert not set(caught) & set(ids0) and set(caught) <= set(ids2)
+    # nothing tracked before the start's take-over, everything after it
+    for out, poses in ((out0, poses0), (out2, poses2)):
+        assert all(o.status == VioStatus.INITIALISING for o in out[:first]) and all(o.ok for o in out[first:])
+        posed = np.flatnonzero(np.isfinite(poses[:, 0, 0]))
+        assert set(range(first, len(out))) <= set(posed)
+        t = np.array([scene.frames[k].timestamp for k in posed])
+        ate = absolute_trajectory_error(CameraTrajectory(t, poses[posed]), CameraTrajectory(t, scene.T_w_c[posed]))
+        assert ate.rmse < 0.005 * scene.path_length() and abs(ate.scale - 1) < 0.01, (ate.rmse, ate.scale)
