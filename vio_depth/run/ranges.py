@@ -168,6 +168,8 @@ SETTING_RANGES: dict[str, str] = {
     "WindowBackendSettings.lag_frames": "[1, 1000]",
     "WindowBackendSettings.start_lag_frames": "[0, 1000]",
     "WindowBackendSettings.init_lag_frames": "[0, 1000]",
+    "WindowBackendSettings.catch_up_keyframes": "[0, 100]",
+    "WindowBackendSettings.max_pending_keyframes": "[1, 100]",
     "RestSettings.gyro_bias_sigma": "(0, inf)",
     "RestSettings.min_imu_s": "(0, inf)",
     "RestSettings.imu_block_s": "(0, inf)",
