@@ -235,8 +235,8 @@ class VioEstimator:
         self._catch_up = self._catch_up_candidates(res)
         for c in self._catch_up:  # posed by the IMU from the keyframe before (no initial state)
             self._times[c.frame_id] = c.t
-            newest = [args for args in out[::-1][: s.window.match_keyframes]]
-            matches = tuple(FrameMatches.from_matches(a[0], self._gate.match(c.features, a[4])) for a in newest)
+            matches = tuple(FrameMatches.from_matches(a[0], self._gate.match(c.features, a[4]))
+                            for a in out[::-1][: s.window.match_keyframes])
             out.append((c.frame_id, c.t, c.camera, None, c.features, matches, None))
         return out
 

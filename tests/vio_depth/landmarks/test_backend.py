@@ -155,11 +155,7 @@ def test_submissions_queue_in_the_worker_and_come_back_in_order(scene, worker):
 def test_a_queued_keyframe_loses_its_matches_with_a_keyframe_the_window_refused(scene):
     """A keyframe queued behind one the window then refuses was matched with it: those matches
     are dropped in the worker (the window does not have it), not an error; the rest are kept."""
-    here, there = multiprocessing.Pipe()
-    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
-    thread.start()
-    here.send(("new", SETTINGS, _RefusesKeyframe2))
-    assert here.recv()[0] == "ok"
+    here, thread = _serving(_RefusesKeyframe2)
     kfs = _keyframes(scene, [0, 2, 4])
     assert {m.keyframe for m in kfs[2].matches} == {0, 2}
     for kf in kfs:
@@ -170,9 +166,7 @@ def test_a_queued_keyframe_loses_its_matches_with_a_keyframe_the_window_refused(
     snap = replies[2][2]
     assert snap.keyframe_ids == [0, 4]
     assert len(snap.query(scene.camera, None, kfs[2].keypoints, frame_id=4)) > 50  # landmarks from its matches with 0
-    here.send(("stop",))
-    thread.join(timeout=5)
-    assert not thread.is_alive()
+    _stopped(here, thread)
 
 
 def _padded(kf: KeyframeInput, n: int) -> KeyframeInput:
@@ -240,14 +234,28 @@ class _RefusesKeyframe2(PosePriorFactors):
         return super().factors(previous, current, estimate, initial)
 
 
-def test_a_batch_stops_at_the_first_keyframe_the_window_refuses(scene):
-    """The worker's loop (in a thread, as below) ends a batch at a refused keyframe: its update
-    comes last, the window keeps the keyframes before it."""
+def _serving(motion_factory):
+    """The worker's loop in a thread of this process, with a new window of ``motion_factory``'s
+    motion source: ``(this end of its pipe, the thread)``."""
     here, there = multiprocessing.Pipe()
     thread = threading.Thread(target=_serve, args=(there,), daemon=True)
     thread.start()
-    here.send(("new", SETTINGS, _RefusesKeyframe2))
+    here.send(("new", SETTINGS, motion_factory))
     assert here.recv()[0] == "ok"
+    return here, thread
+
+
+def _stopped(here, thread) -> None:
+    """Stop the loop of :func:`_serving` and check that it ended."""
+    here.send(("stop",))
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+def test_a_batch_stops_at_the_first_keyframe_the_window_refuses(scene):
+    """The worker's loop (in a thread, as below) ends a batch at a refused keyframe: its update
+    comes last, the window keeps the keyframes before it."""
+    here, thread = _serving(_RefusesKeyframe2)
     kfs = _keyframes(scene, [0, 2, 4])
     here.send(("add", [(kf, None, None) for kf in kfs]))
     kind, updates, snap = here.recv()
@@ -257,9 +265,7 @@ def test_a_batch_stops_at_the_first_keyframe_the_window_refuses(scene):
     here.send(("add", [(kfs[1], None, None)]))  # the only keyframe refused: the window is unchanged
     kind, updates, snap = here.recv()
     assert kind == "ok" and not updates[0].ok and snap is None
-    here.send(("stop",))
-    thread.join(timeout=5)
-    assert not thread.is_alive()
+    _stopped(here, thread)
 
 
 def test_errors_in_the_worker_are_raised_here_as_they_would_be_inline(scene, worker):
@@ -302,20 +308,14 @@ class _Failing:
 def test_a_numerical_failure_in_the_worker_is_reported_as_one_and_the_window_dropped(scene):
     """The worker's loop (run here in a thread: this test's motion source cannot be imported by a
     spawned interpreter) answers a NumericalError with its message and forgets the window."""
-    here, there = multiprocessing.Pipe()
-    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
-    thread.start()
-    here.send(("new", SETTINGS, _Failing))
-    assert here.recv()[0] == "ok"
+    here, thread = _serving(_Failing)
     kf = _keyframes(scene, [0])[0]
     here.send(("add", [(kf, None, None)]))
     assert here.recv() == ("numerical", "the motion source failed")
     here.send(("add", [(kf, None, None)]))
     kind, exc, _ = here.recv()
     assert kind == "raise" and isinstance(exc, InputError) and "no window" in str(exc)
-    here.send(("stop",))
-    thread.join(timeout=5)
-    assert not thread.is_alive()
+    _stopped(here, thread)
 
 
 def test_a_request_the_worker_cannot_read_is_an_error_here_and_the_worker_lives_on(scene, worker):
@@ -461,11 +461,7 @@ def test_a_call_s_failure_is_raised_here_and_the_worker_and_its_window_live_on(s
         worker.call_result()
     worker.ping()
     # as the worker answers them (in a thread here): a NumericalError does not drop the window
-    here, there = multiprocessing.Pipe()
-    thread = threading.Thread(target=_serve, args=(there,), daemon=True)
-    thread.start()
-    here.send(("new", SETTINGS, None))
-    assert here.recv()[0] == "ok"
+    here, thread = _serving(None)
     here.send(("call", _raising, ("numerical",)))
     assert here.recv() == ("numerical", "the attempt failed numerically")
     here.send(("call", _raising, ("input",)))
@@ -474,9 +470,7 @@ def test_a_call_s_failure_is_raised_here_and_the_worker_and_its_window_live_on(s
     here.send(("add", [(_keyframes(scene, [0])[0], None, None)]))
     kind, updates, _ = here.recv()
     assert kind == "ok" and updates[0].ok
-    here.send(("stop",))
-    thread.join(timeout=5)
-    assert not thread.is_alive()
+    _stopped(here, thread)
 
 
 def test_discard_drops_a_pending_call_and_a_reset_after_a_call_keeps_the_pipe_in_step(scene, worker):
