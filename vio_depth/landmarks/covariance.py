@@ -46,15 +46,27 @@ class PoseCovariances:
         (``relative`` False, the first keyframe), or that of its pose relative to the
         previous newest keyframe, added to that keyframe's (and sharing its correlations)."""
         C = check_array("covariance", covariance, (6, 6))
+        if relative and self._ids:
+            self.append_relative_to(frame_id, C, self._ids[-1])
+            return
         K = len(self._S)
         J = np.zeros((K + 6, K + 6))
         J[:K, :K] = self._S
-        if not relative or K == 0:
-            J[K:, K:] = C
-        else:
-            J[K:, :K] = self._S[K - 6:K, :]
-            J[:K, K:] = self._S[:, K - 6:K]
-            J[K:, K:] = self._S[K - 6:K, K - 6:K] + C
+        J[K:, K:] = C
+        self._S = J
+        self._ids.append(int(frame_id))
+
+    def append_relative_to(self, frame_id: int, covariance: np.ndarray, reference: int) -> None:
+        """A new (newest) keyframe whose ``covariance`` (6, 6) is that of its pose relative to
+        keyframe ``reference`` (added to that keyframe's, sharing its correlations)."""
+        C = check_array("covariance", covariance, (6, 6))
+        K = len(self._S)
+        r = 6 * self._ids.index(reference)
+        J = np.zeros((K + 6, K + 6))
+        J[:K, :K] = self._S
+        J[K:, :K] = self._S[r:r + 6, :]
+        J[:K, K:] = self._S[:, r:r + 6]
+        J[K:, K:] = self._S[r:r + 6, r:r + 6] + C
         self._S = J
         self._ids.append(int(frame_id))
 

@@ -1,4 +1,5 @@
-"""Re-triangulating only the tracks that changed: :func:`reusable_tracks`, :func:`merge_points`.
+"""Re-triangulating only the tracks that changed: :func:`reusable_tracks`, :func:`merge_points`,
+and the window's triangulation built on them, :func:`triangulate_window`.
 
 The window triangulates its tracks before every refinement and again after it. A track
 whose observations are exactly those of an earlier triangulation (same keyframes, same
@@ -13,9 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from triangulation.multiview import MultiviewPoints
+from triangulation.multiview import MultiviewPoints, MultiviewSettings, triangulate_tracks
+from vio_core.checks import check_array
 
-from .tracks import Observations
+from .tracks import Observations, TrackTable
 
 # (frame, keypoint) packed into one int64: keypoint indices stay below 2^24
 _KP_BITS = 24
@@ -88,3 +90,40 @@ def merge_points(obs: Observations, fresh: np.ndarray, new: MultiviewPoints, old
                            per_obs(new.depth, old.depth), per_obs(new.sigma_depth, old.sigma_depth),
                            tracks(new.relative_sigma, old.relative_sigma))
 
+
+
+def triangulate_window(tracks: TrackTable, frame_ids, cameras, poses, covariances, settings: MultiviewSettings,
+                       min_length: int, previous=None, fresh_frames=()) -> tuple[Observations, MultiviewPoints]:
+    """Triangulate a window's tracks of ``min_length`` observations or more.
+
+    Args:
+        tracks: the window's :class:`~.tracks.TrackTable`.
+        frame_ids: (K,) its keyframe ids, oldest first.
+        cameras: their K cameras.
+        poses: (K, 4, 4) their camera-to-world poses, metres.
+        covariances: (K, 6, 6) their pose covariances relative to a reference keyframe
+            (rotation rad, translation m).
+        settings: :class:`~triangulation.multiview.MultiviewSettings`.
+        min_length: fewest observations of a triangulated track.
+        previous: ``(observations, MultiviewPoints)`` of an earlier triangulation, or None. Its
+            result is kept for the tracks whose observations did not change since and that
+            have no observation in a keyframe of ``fresh_frames``; the others are
+            triangulated at ``poses`` and ``covariances``.
+        fresh_frames: keyframe ids whose tracks are always triangulated again.
+
+    Returns:
+        ``(observations, MultiviewPoints)``: the observations triangulated and the result.
+    """
+    ids = [int(f) for f in frame_ids]
+    T = check_array("poses", poses, (len(ids), 4, 4))
+    C = check_array("covariances", covariances, (len(ids), 6, 6))
+    obs = tracks.observations(min_length=min_length)
+    view = np.searchsorted(np.array(ids), obs.frame) if len(obs) else np.zeros(0, np.int64)
+    fresh = np.ones(len(obs), bool)
+    if previous is not None:
+        fresh = ~reusable_tracks(obs, *previous)
+        fresh |= np.isin(obs.track, obs.track[np.isin(obs.frame, list(fresh_frames))])
+    res = triangulate_tracks(obs.track[fresh], view[fresh], obs.uv[fresh], list(cameras), T, settings, C)
+    if not fresh.all():
+        res = merge_points(obs, fresh, res, *previous)
+    return obs, res

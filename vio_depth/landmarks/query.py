@@ -23,6 +23,30 @@ from .resection import refine_pose
 from .types import LandmarkPoints
 
 
+def frame_prior(window, T_w_c, matches=(), prior_covariance=None) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's pose prior in the window, before the landmarks refine it.
+
+    ``T_w_c`` (4, 4) camera-to-world, metres, is corrected like the newest keyframe of
+    ``matches`` (:class:`FrameMatches` with keyframes of the window; none: the newest keyframe)
+    was by the window -- unless the motion source gives the priors itself (keyframes without a
+    prior) -- and is uncertain by that keyframe's covariance relative to the window's reference
+    plus ``prior_covariance`` (6, 6) (None: the settings' relative pose prior over the step).
+
+    Returns:
+        ``(T_w_c (4, 4), covariance (6, 6) relative to the window's reference keyframe)``.
+    """
+    w = window
+    ids = w.keyframe_ids
+    T_prior = check_transform("T_w_c", T_w_c)
+    ref = max((m.keyframe for m in matches if m.keyframe in ids), default=ids[-1])
+    ref_info = w.keyframe(ref)
+    T0 = T_prior if ref_info.T_w_c is None else w.pose(ref) @ invert_transform(ref_info.T_w_c) @ T_prior
+    step = float(np.linalg.norm((invert_transform(T0) @ w.pose(ref))[:3, 3]))
+    motion_cov = relative_prior_covariance(w.settings.pose_prior, step) if prior_covariance is None else check_array(
+        "prior_covariance", prior_covariance, (6, 6), finite=True)
+    return T0, w.relative_covariances()[ids.index(ref)] + motion_cov
+
+
 def query_frame(window, camera: Camera, T_w_c, keypoints, matches=(), frame_id: int | None = None,
                 prior_covariance=None) -> LandmarkPoints:
     """Metric landmark points seen by a frame (module docstring).
@@ -47,17 +71,9 @@ def query_frame(window, camera: Camera, T_w_c, keypoints, matches=(), frame_id: 
                               w.pose(frame_id), int(sel.sum()), True, "", rel_cov, obs.keypoint[sel])
     if T_w_c is None:
         raise InputError("landmarks: a frame that is not a keyframe of the window needs a pose prior")
-    T_prior = check_transform("T_w_c", T_w_c)
     matches = [m for m in matches if m.keyframe in ids]
-    # prior: corrected like the newest matched keyframe, uncertain by the relative prior
-    ref = max((m.keyframe for m in matches), default=ids[-1])
-    ref_info = w.keyframe(ref)
-    T0 = T_prior if ref_info.T_w_c is None else w.pose(ref) @ invert_transform(ref_info.T_w_c) @ T_prior
-    step = float(np.linalg.norm((invert_transform(T0) @ w.pose(ref))[:3, 3]))
+    T0, prior_cov = frame_prior(w, T_w_c, matches, prior_covariance)
     s = w.settings
-    motion_cov = relative_prior_covariance(s.pose_prior, step) if prior_covariance is None else check_array(
-        "prior_covariance", prior_covariance, (6, 6), finite=True)
-    prior_cov = w.relative_covariances()[ids.index(ref)] + motion_cov
 
     def empty(reason):
         out = LandmarkPoints.empty(reason, T0)

@@ -55,14 +55,14 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from triangulation.multiview import MultiviewPoints, TrackStatus, triangulate_tracks
+from triangulation.multiview import MultiviewPoints, TrackStatus
 from vio_core.camera import Camera
 from vio_core.errors import InputError, NumericalError, SettingsError
 from vio_core.geometry import invert_transform
 
 from .covariance import PoseCovariances, prior_covariance
 from .graph import WindowGraph, select_landmarks
-from .incremental import merge_points, reusable_tracks
+from .incremental import triangulate_window
 from .isam import IsamGraph
 from .motion import MotionFactorSource, PosePriorFactors
 from .query import query_frame
@@ -240,19 +240,10 @@ class LandmarkWindow:
         and that have no observation in a keyframe of ``fresh_frames``; the others are
         triangulated at the current poses and covariances (:mod:`.incremental`).
         """
-        obs = self.tracks.observations(min_length=self.settings.min_track_length)
         ids = self.keyframe_ids
-        T = np.stack([self.pose(f) for f in ids])
-        C = self.relative_covariances()
-        cams = [self._kf[f].info.camera for f in ids]
-        view = np.searchsorted(np.array(ids), obs.frame) if len(obs) else np.zeros(0, np.int64)
-        fresh = np.ones(len(obs), bool)
-        if previous is not None:
-            fresh = ~reusable_tracks(obs, *previous)
-            fresh |= np.isin(obs.track, obs.track[np.isin(obs.frame, list(fresh_frames))])
-        res = triangulate_tracks(obs.track[fresh], view[fresh], obs.uv[fresh], cams, T, self.settings.multiview, C)
-        if not fresh.all():
-            res = merge_points(obs, fresh, res, *previous)
+        obs, res = triangulate_window(self.tracks, ids, [self._kf[f].info.camera for f in ids],
+                                      np.stack([self.pose(f) for f in ids]), self.relative_covariances(),
+                                      self.settings.multiview, self.settings.min_track_length, previous, fresh_frames)
         self._obs = obs
         return obs, res
 
