@@ -18,10 +18,16 @@ With a :class:`~.backend.ProcessWindow` (:class:`~.settings.WindowBackendSetting
 the window as it was (its points from step 2) and the keyframe is *submitted*; the next
 frames are matched and queried against that window too, and the refined window is taken
 over ``lag_frames`` frames later (:meth:`LandmarkEstimator.land`: the caller may take it
-before a frame's own processing, e.g. to predict from it). Meanwhile no new keyframe is
-chosen -- or, with ``max_pending_keyframes`` > 1, the frames are also matched with the
-pending keyframes and step 3 tests them against the newest pending one (its pose as
-estimated when it was submitted): a keyframe chosen then is queued in the worker behind it.
+before a frame's own processing, e.g. to predict from it). With ``provisional_landmarks``
+the frames meanwhile are matched and queried against a *provisional* window instead: the
+last one taken over, extended by the pending keyframe, whose tracks are triangulated at its
+estimated pose (:meth:`WindowSnapshot.with_keyframe <.snapshot.WindowSnapshot.with_keyframe>`),
+so that they see the landmarks it started, as they would inline (the keyframe's own frame
+keeps the points of step 2). Meanwhile no new keyframe is chosen -- or, with
+``max_pending_keyframes`` > 1, the frames are also matched with the pending keyframes and
+step 3 tests them against the newest pending one (its pose as estimated when it was
+submitted): a keyframe chosen then is queued in the worker behind it. :attr:`window` is
+always the window last taken over (the refined one).
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from vio_core.errors import InputError
 
 from .backend import ProcessWindow
 from .motion import MotionFactorSource
+from .query import frame_prior
 from .settings import LandmarkSettings, WindowBackendSettings
 from .snapshot import WindowSnapshot
 from .tracks import FrameMatches
@@ -61,6 +68,9 @@ class _Submitted:
     timestamp: float  # seconds, of the last keyframe
     T_w_c: np.ndarray | None = None  # (4, 4) the last keyframe's pose estimate at submission
     tracked: int = 0  # landmarks of the window associated with it at submission
+    kf: KeyframeInput | None = None  # the last keyframe as sent (for the provisional window)
+    covariance: np.ndarray | None = None  # (6, 6) its prior's covariance relative to the window's reference
+    T_prior: np.ndarray | None = None  # (4, 4) its pose prior in the window (the provisional window's pose)
 
 
 @dataclass(frozen=True)
@@ -131,6 +141,8 @@ class LandmarkEstimator:
             #: in a worker process, the window as last taken over (a WindowSnapshot)
             backend.reset(settings, motion_factory)
             self.window = WindowSnapshot.empty(settings)
+        #: the window extended by the pending keyframes (``provisional_landmarks``), or None
+        self._provisional: WindowSnapshot | None = None
         self._features: dict[int, object] = {}
         self._last_tracked: int | None = None
         self._frames = 0  # frames processed (the lag of a submitted keyframe counts them)
@@ -187,7 +199,26 @@ class LandmarkEstimator:
         while self._pending and (wait or not landed):
             landed += self._take()
         self.landed_updates = tuple(landed)
+        self._provisional = None
+        for sub in self._pending:  # the keyframes still queued, on the window taken over
+            self._extend(sub)
         return landed[-1]
+
+    @property
+    def _view(self) -> WindowSnapshot | LandmarkWindow:
+        """What frames are matched and queried against: the provisional window, or the window."""
+        return self.window if self._provisional is None else self._provisional
+
+    def _extend(self, sub: _Submitted) -> None:
+        """Extend the provisional window by a submitted keyframe (``provisional_landmarks``)."""
+        if sub.kf is not None and sub.T_prior is not None:
+            self._provisional = self._view.with_keyframe(sub.kf, sub.T_prior, sub.covariance)
+
+    def _keyframe_features_any(self, frame_id: int):
+        """The features of a keyframe of the window or of a pending one."""
+        if frame_id in self._features:
+            return self._features[frame_id]
+        return next(k[1] for sub in self._pending for k in sub.keyframes if k[0] == frame_id)
 
     def _take(self) -> tuple[WindowUpdate, ...]:
         """Take the oldest pending submission's updates and window over (waiting for them)."""
@@ -264,7 +295,7 @@ class LandmarkEstimator:
         T_w_c = check_transform("T_w_c", T_w_c)
         landed = self.land(frame_id)
         kp = np.asarray(features.keypoints, np.float64)
-        w = self.window
+        w = self._view
         if not w.keyframe_ids:
             update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, ())
             if not update.ok:
@@ -273,13 +304,15 @@ class LandmarkEstimator:
             return FrameLandmarks(LandmarkPoints.empty("first keyframe: no landmarks yet", T_w_c), True,
                                   "first frame", 0, float("inf"), update, landed=landed)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
-        matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._features[k])) for k in newest_first]
+        matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._keyframe_features_any(k)))
+                   for k in newest_first]
         points = w.query(camera, T_w_c, kp, matches, prior_covariance=prior_covariance)
         if len(self._pending) >= self.backend_settings.max_pending_keyframes:
             # the worker is refining the window and its queue is full: no new keyframe meanwhile
             return FrameLandmarks(points, False, "", sum(len(m) for m in matches), float("inf"),
                                   frame_matches=tuple(matches), landed=landed)
-        if self._pending:  # the newest keyframe is queued in the worker: matched and tested as it was sent
+        if self._pending and self._provisional is None:  # the newest keyframe is queued in the worker:
+            # matched and tested as it was sent
             queued = [k for sub in self._pending for k in sub.keyframes][::-1][: s.match_keyframes]
             matches = [FrameMatches.from_matches(k[0], self.matcher.match(features, k[1])) for k in queued] + matches
             newest, _, kf_camera, kf_uv = queued[0]
@@ -300,11 +333,21 @@ class LandmarkEstimator:
             return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches), landed=landed)
         if self._remote is not None:
             sent = tuple(matches[: s.match_keyframes])  # the newest keyframes, queued ones first (as inline)
-            self._remote.submit(self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, sent), None,
-                                self._samples(frame_id, timestamp))
-            self._pending.append(_Submitted(self._frames, ((int(frame_id), features, camera, kp),),
-                                            self.backend_settings.lag_frames, float(timestamp), points.T_w_c,
-                                            int(points.associated)))
+            kf = self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, sent)
+            self._remote.submit(kf, None, self._samples(frame_id, timestamp))
+            # the provisional keyframe sits at its prior, not at the pose the landmarks refined: that
+            # pose's error is correlated with theirs (e.g. their common scale), which its covariance
+            # leaves out, and the tracks triangulated from it would inherit it with too small a sigma
+            T_prov, C_prov = frame_prior(w, T_w_c, matches, prior_covariance)
+            sub = _Submitted(self._frames, ((int(frame_id), features, camera, kp),), self.backend_settings.lag_frames,
+                             float(timestamp), points.T_w_c, int(points.associated),
+                             kf if self.backend_settings.provisional_landmarks else None, C_prov, T_prov)
+            self._pending.append(sub)
+            self._extend(sub)
+            if self._provisional is not None and frame_id in self._provisional.keyframe_ids:
+                # its landmarks in the provisional window: what the next frames' tracked fraction is
+                # measured against (the frame itself keeps its refined pose and the points of step 2)
+                self._last_tracked = len(self._provisional.query(camera, None, kp, frame_id=frame_id))
             return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
                                   landed=landed)
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
@@ -338,6 +381,7 @@ class LandmarkEstimator:
             update, snapshot = self._remote.insert(kf, initial, self._samples(frame_id, timestamp))
             if snapshot is not None:
                 self.window = snapshot
+                self._provisional = None
         if not update.ok:
             return update
         self._keep_features(frame_id, features)

@@ -289,6 +289,7 @@ class WindowBackendSettings:
     init_lag_frames: int = 10
     catch_up_keyframes: int = 2
     max_pending_keyframes: int = 1
+    provisional_landmarks: bool = False
 
     def __post_init__(self):
         if self.kind not in WINDOW_BACKENDS:
@@ -303,3 +304,8 @@ class WindowBackendSettings:
             raise SettingsError("window backend catch_up_keyframes must be an integer >= 0")
         if not (isinstance(self.max_pending_keyframes, int) and self.max_pending_keyframes >= 1):
             raise SettingsError("window backend max_pending_keyframes must be an integer >= 1")
+        if not isinstance(self.provisional_landmarks, bool):
+            raise SettingsError("window backend provisional_landmarks must be true or false")
+        if self.provisional_landmarks and self.max_pending_keyframes > 1:
+            raise SettingsError("window backend: provisional_landmarks with max_pending_keyframes > 1 chains "
+                                "unrefined keyframes (the street sample's scale drifted 10-17 %); use one of them")
