@@ -58,11 +58,11 @@ SAMPLES = {"street": dict(pairing=None, max_depth=80.0), "room": dict(pairing="i
 
 def run_sample(name: str, poses: str, out: Path, points: str = "sfm", matcher: str | None = None,
                backend: str = "inline", lag_frames: int = 6, shared_confidence: float | None = None,
-               max_pending: int = 1):
+               max_pending: int = 1, provisional: bool = False):
     """``(RunSummary, frame records)`` of one full run (``matcher`` None: the default; klt with the
     edge guard 0.1, as the realtime benches; ``backend`` "process": the odometry's landmark window
     in a worker process, its updates taken over ``lag_frames`` later, up to ``max_pending`` keyframes
-    queued)."""
+    queued, the frames meanwhile against the provisional window with ``provisional``)."""
     from dataclasses import replace
 
     from vio_depth import Pipeline, PipelineSettings, open_sequence
@@ -78,7 +78,7 @@ def run_sample(name: str, poses: str, out: Path, points: str = "sfm", matcher: s
         settings = replace(settings, rescaler=replace(settings.rescaler, shared_error_confidence=shared_confidence))
     if poses == "vio" and backend != "inline":
         settings = replace(settings, poses=replace(settings.poses, backend=WindowBackendSettings(
-            backend, lag_frames, max_pending_keyframes=max_pending)))
+            backend, lag_frames, max_pending_keyframes=max_pending, provisional_landmarks=provisional)))
     summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=spec["max_depth"]),
                            progress=False)
     return summary, read_frames_jsonl(out / "frames.jsonl")[1]
@@ -133,19 +133,20 @@ def sample_rows(names) -> tuple[list[str], list[str]]:
 
 
 def backend_rows(names, matcher: str | None, backend: str, lag_frames: int,
-                 shared_confidence: float | None = None, max_pending: int = 1) -> list[str]:
+                 shared_confidence: float | None = None, max_pending: int = 1, provisional: bool = False,
+                 inline: bool = True) -> list[str]:
     """``--points vio`` with the odometry's window inline and in a worker process, same run: frames
     written, wrong written (and which), AbsRel and oracle AbsRel over the frames written."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            for kind in ("inline", backend):
+            for kind in ("inline", backend)[0 if inline else 1:]:
                 summary, records = run_sample(name, "vio", Path(tmp) / f"{name}_{kind}", "vio", matcher, kind,
-                                              lag_frames, shared_confidence, max_pending)
+                                              lag_frames, shared_confidence, max_pending, provisional)
                 m, oracle = summary.metrics["vio"], summary.metrics["oracle"]
                 wrong = wrong_frames(records)
                 label = "inline" if kind == "inline" else f"{kind}, lag {lag_frames}" + (
-                    f", queue {max_pending}" if max_pending > 1 else "")
+                    f", queue {max_pending}" if max_pending > 1 else "") + (", provisional" if provisional else "")
                 rows.append(f"| {name} | {label} | {summary.frames_with_depth}/{summary.frames_processed} "
                             f"| {len(wrong)} {wrong if wrong else ''} | {m['abs_rel']:.4f} | {oracle['abs_rel']:.4f} |")
                 print(rows[-1], flush=True)
@@ -192,6 +193,9 @@ def main(argv=None) -> int:
     parser.add_argument("--lag-frames", type=int, default=6, help="with --backend: frames until an update is taken")
     parser.add_argument("--max-pending", type=int, default=1,
                         help="with --backend: keyframes queued in the worker at most (1: none while one is pending)")
+    parser.add_argument("--provisional", action="store_true",
+                        help="with --backend: frames meanwhile against the window extended by the pending keyframe")
+    parser.add_argument("--no-inline", action="store_true", help="with --backend: skip the inline rows")
     parser.add_argument("--shared-error-confidence", type=float, default=None,
                         help="with --backend: the rescaler's shared_error_confidence (default: off)")
     parser.add_argument("--matcher", default=None, help="matcher preset (default: the pipeline's; klt with --backend)")
@@ -211,7 +215,7 @@ def main(argv=None) -> int:
         if args.shared_error_confidence is not None:
             print(f"(rescaler: shared_error_confidence {args.shared_error_confidence})\n")
         backend_rows(args.samples, matcher, args.backend, args.lag_frames, args.shared_error_confidence,
-                     args.max_pending)
+                     args.max_pending, args.provisional, not args.no_inline)
         return 0
     if args.samples:
         print("\n| sample (SIMULATED) | poses | frames with depth | AbsRel | / gt | ATE m | ATE / path | RPE 1 m "
