@@ -431,7 +431,7 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
     if process_backend:
         label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "") + (
             f", queue {backend.max_pending_keyframes}" if backend.max_pending_keyframes > 1 else "") + (
-            f", catch-up {backend.catch_up_keyframes}")
+            f", catch-up {backend.catch_up_keyframes}") + (", provisional" if backend.provisional_landmarks else "")
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
                peak_rss_mib(), dict(runner.statuses), label, list(runner.posed))
 
@@ -514,6 +514,9 @@ def main(argv=None) -> int:
     parser.add_argument("--vio-catch-up", type=int, default=WindowBackendSettings().catch_up_keyframes,
                         help="process backend: candidates collected while the start's attempt ran that join its "
                              "window")
+    parser.add_argument("--vio-provisional", action="store_true",
+                        help="process backend: the frames of the lag matched and queried against the window "
+                             "extended by the pending keyframe (provisional landmarks)")
     parser.add_argument("--vio-when-ready", action="store_true",
                         help="process backend: take an update over as soon as it is ready (timing-dependent)")
     parser.add_argument("--no-baselines", action="store_true")
@@ -532,7 +535,8 @@ def main(argv=None) -> int:
     try:
         backends = [WindowBackendSettings(b, args.vio_lag, args.vio_when_ready,
                                           catch_up_keyframes=args.vio_catch_up,
-                                          max_pending_keyframes=args.vio_max_pending)
+                                          max_pending_keyframes=args.vio_max_pending,
+                                          provisional_landmarks=args.vio_provisional and b != "inline")
                     for b in args.vio_backends.split(",") if b]
     except ValueError as exc:
         parser.error(str(exc))

@@ -15,7 +15,7 @@ scale correction; metres), frames with depth and their dense AbsRel against the 
 depth (not for ``asl_room``, which has none), mean ms of the ``poses`` stage and of the whole
 push; ``wrong``: frames with depth whose AbsRel exceeds 2 x their own oracle (least-squares
 fit of the same disparity to the truth, :func:`~vio_depth.evaluation.metrics.oracle_fit`) +
-0.02; ``update CPU ms``: mean CPU (thread) milliseconds of the window's keyframe updates
+0.02 (listed: frame index, its AbsRel and the predicted error of its fit); ``update CPU ms``: mean CPU (thread) milliseconds of the window's keyframe updates
 (``LandmarkWindow.add_keyframe``, inline) -- e.g. ``--set solver='isam2'`` against the batch
 window. The named baseline is the **default settings**, run first in the same invocation; each
 ``--set`` runs once more with ``FIELD=VALUE`` changed (a field of ``VioSettings.window``,
@@ -92,7 +92,7 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
     stream = FrameStream(seq.camera, with_changes(settings, changes), imu_calibration=seq.imu,
                          pose_kind=seq.pose_kind)
     imu, done = seq.imu, -np.inf
-    est, ref, abs_rel, poses_s, total_s, wrong = [], [], [], [], [], 0
+    est, ref, abs_rel, poses_s, total_s, wrong = [], [], [], [], [], []
     # CPU seconds of the window's keyframe updates (inline: in the calling thread)
     update_cpu, add_keyframe = [], LandmarkWindow.add_keyframe
 
@@ -123,7 +123,10 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
             abs_rel.append(float(np.mean(np.abs(r.depth[m] - gt[m]) / gt[m])))
             fit = oracle_fit(d, gt, max_depth=max_depth)
             oracle = 1.0 / np.maximum(fit.alpha * d[m] + fit.beta, 1e-9)
-            wrong += abs_rel[-1] > 2 * float(np.nanmean(np.abs(oracle - gt[m]) / gt[m])) + 0.02
+            if abs_rel[-1] > 2 * float(np.nanmean(np.abs(oracle - gt[m]) / gt[m])) + 0.02:
+                predicted = r.rescale.predicted_error if r.rescale is not None else None
+                wrong.append(f"{i} ({100 * abs_rel[-1]:.1f} %, predicted "
+                             f"{'-' if predicted is None else f'{100 * predicted:.1f} %'})")
     LandmarkWindow.add_keyframe = add_keyframe
     return {"wrong": wrong, "updates": len(update_cpu),
             "update_cpu_ms": 1000 * float(np.mean(update_cpu)) if update_cpu else float("nan"),"posed": f"{len(est)}/{len(seq)}",
@@ -169,7 +172,7 @@ def main(argv=None) -> int:
         for label, changes in variants:
             r = run(name, args.matcher, changes, args.cache)
             print(f"| {name} | {label} | {r['posed']} | {r['ate_mm']:.1f} | {r['depth']} | {r['abs_rel']:.4f} | "
-                  f"{r['wrong']} | {r['poses_ms']:.1f} | {r['total_ms']:.1f} | {r['updates']} | "
+                  f"{len(r['wrong'])} {', '.join(r['wrong'])} | {r['poses_ms']:.1f} | {r['total_ms']:.1f} | {r['updates']} | "
                   f"{r['update_cpu_ms']:.1f} |", flush=True)
     return 0
 
