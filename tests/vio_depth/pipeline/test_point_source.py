@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from vio_core.errors import InputError, SettingsError, UnknownNameError
