@@ -68,9 +68,9 @@ class _Submitted:
     timestamp: float  # seconds, of the last keyframe
     T_w_c: np.ndarray | None = None  # (4, 4) the last keyframe's pose estimate at submission
     tracked: int = 0  # landmarks of the window associated with it at submission
-    kf: KeyframeInput | None = None  # the last keyframe as sent (for the provisional window)
-    covariance: np.ndarray | None = None  # (6, 6) its prior's covariance relative to the window's reference
-    T_prior: np.ndarray | None = None  # (4, 4) its pose prior in the window (the provisional window's pose)
+    # with ``provisional_landmarks``: (the keyframe as sent, its pose prior (4, 4) in the window,
+    # that prior's covariance (6, 6) relative to the window's reference), for the provisional window
+    provisional: tuple[KeyframeInput, np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -211,8 +211,8 @@ class LandmarkEstimator:
 
     def _extend(self, sub: _Submitted) -> None:
         """Extend the provisional window by a submitted keyframe (``provisional_landmarks``)."""
-        if sub.kf is not None and sub.T_prior is not None:
-            self._provisional = self._view.with_keyframe(sub.kf, sub.T_prior, sub.covariance)
+        if sub.provisional is not None:
+            self._provisional = self._view.with_keyframe(*sub.provisional)
 
     def _keyframe_features_any(self, frame_id: int):
         """The features of a keyframe of the window or of a pending one."""
@@ -335,13 +335,15 @@ class LandmarkEstimator:
             sent = tuple(matches[: s.match_keyframes])  # the newest keyframes, queued ones first (as inline)
             kf = self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, sent)
             self._remote.submit(kf, None, self._samples(frame_id, timestamp))
-            # the provisional keyframe sits at its prior, not at the pose the landmarks refined: that
-            # pose's error is correlated with theirs (e.g. their common scale), which its covariance
-            # leaves out, and the tracks triangulated from it would inherit it with too small a sigma
-            T_prov, C_prov = frame_prior(w, T_w_c, matches, prior_covariance)
+            provisional = None
+            if self.backend_settings.provisional_landmarks:
+                # the provisional keyframe sits at its prior, not at the pose the landmarks refined:
+                # that pose's error is correlated with theirs (e.g. their common scale), which its
+                # covariance leaves out, and the tracks triangulated from it would inherit it with
+                # too small a sigma
+                provisional = (kf, *frame_prior(w, T_w_c, matches, prior_covariance))
             sub = _Submitted(self._frames, ((int(frame_id), features, camera, kp),), self.backend_settings.lag_frames,
-                             float(timestamp), points.T_w_c, int(points.associated),
-                             kf if self.backend_settings.provisional_landmarks else None, C_prov, T_prov)
+                             float(timestamp), points.T_w_c, int(points.associated), provisional)
             self._pending.append(sub)
             self._extend(sub)
             if self._provisional is not None and frame_id in self._provisional.keyframe_ids:

@@ -91,7 +91,6 @@ def merge_points(obs: Observations, fresh: np.ndarray, new: MultiviewPoints, old
                            tracks(new.relative_sigma, old.relative_sigma))
 
 
-
 def triangulate_window(tracks: TrackTable, frame_ids, cameras, poses, covariances, settings: MultiviewSettings,
                        min_length: int, previous=None, fresh_frames=()) -> tuple[Observations, MultiviewPoints]:
     """Triangulate a window's tracks of ``min_length`` observations or more.
