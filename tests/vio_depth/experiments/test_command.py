@@ -59,6 +59,7 @@ def test_local_pool_gives_identical_numbers_and_the_cache_resumes(sequential, tm
     assert "Identical numbers: yes" in (again.out / "report.md").read_text()
 
 
+@pytest.mark.heavy  # ~25 s; test_tasks' Ray instance against the sequential run stays in the suite
 def test_local_ray_instance_with_two_workers_gives_identical_numbers(sequential, tmp_path, monkeypatch):
     pytest.importorskip("ray")
     monkeypatch.setenv("PYTHONPATH", str(ROOT))  # Ray's workers import this checkout

@@ -35,7 +35,9 @@ from vio_depth.evaluation import read_trajectory_tum
 
 REPO = Path(__file__).resolve().parents[3]
 ROOM = REPO / "sample_sequences" / "room"
-pytestmark = [pytest.mark.slow,  # 12 runs with every export on: about 2 minutes on 2 cores
+#: 12 runs with every export on: about 2.5 minutes on 2 cores, so all but the native IMU-cloud
+#: check are ``heavy`` (run with ``pytest -m heavy``, docs/benchmarks.md)
+pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not (ROOM / "sequence.json").exists(), reason="bundled samples missing")]
 pytest.importorskip("gtsam")
 pytest.importorskip("mcap")
@@ -202,6 +204,7 @@ def _check_vio(outs: dict[str, Path]) -> None:
     assert metrics["true"]["trajectory"]["reference_poses"] > 0 and metrics["true"]["trajectory"]["ate"] is not None
 
 
+@pytest.mark.heavy  # 3 runs with every export, ~80 s; test_vio_runs' scrambled == absent stays in the suite
 def test_vio_outputs_ignore_the_native_sequence_poses(tmp_path, native_prefix):
     outs = {}
     for variant in VARIANTS:
@@ -210,6 +213,7 @@ def test_vio_outputs_ignore_the_native_sequence_poses(tmp_path, native_prefix):
     _check_vio(outs)
 
 
+@pytest.mark.heavy  # ~45 s with the ASL folder
 def test_vio_outputs_ignore_the_asl_ground_truth(tmp_path, asl_master):
     master, disparity = asl_master
     outs = {}
@@ -253,7 +257,7 @@ def _check_clouds_on_run_poses(out: Path) -> int:
     return checked
 
 
-@pytest.mark.parametrize("data", ["native", "asl"])
+@pytest.mark.parametrize("data", ["native", pytest.param("asl", marks=pytest.mark.heavy)])
 def test_imu_clouds_are_placed_with_the_runs_own_poses(tmp_path, data, request, native_prefix):
     if data == "asl":
         master, disparity = request.getfixturevalue("asl_master")
