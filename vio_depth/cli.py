@@ -49,9 +49,11 @@ from .run import (
     OutputFolderError,
     OutputMode,
     RunSettings,
+    Terminated,
     dump_config,
     format_table,
     load_config,
+    raise_terminated,
     run_sequence,
     staging_path,
 )
@@ -413,14 +415,6 @@ def _safe_streams() -> None:
             pass
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, a robot's process manager, ``docker stop``) handled like Ctrl-C."""
-
-
-def _on_sigterm(signum, frame):
-    raise Terminated()
-
-
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _safe_streams()
@@ -429,7 +423,7 @@ def main(argv=None) -> int:
     _configure_logging(args.verbose, args.quiet)
     previous = None
     if threading.current_thread() is threading.main_thread():  # signals reach the main thread only
-        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+        previous = signal.signal(signal.SIGTERM, raise_terminated)
     try:
         return _main(args)
     finally:

@@ -11,6 +11,7 @@ module             job
 ``backfill``       :func:`backfill_leading_frames`: the offline backward pass
 ``finish``         :func:`finish_run`: the summary and the outputs that need every frame
 ``overlap``        :class:`Prefetcher`, :class:`OrderedWriter`: the worker threads of a run
+``interrupt``      :func:`deferred_interrupts`: Ctrl-C / SIGTERM raised between frames, never inside a lock
 ``timing``         :func:`timing_summary`: per-stage timings in ``metrics.json``
 ``outputs``        :class:`RunOutputs`: depth PNGs, ``frames.jsonl``, ``metrics.json``
 ``record``         :class:`FrameRecord`, :class:`RunHeader` (docs/frames_schema.md)
@@ -27,6 +28,7 @@ pose_calibration   ``--calibrate-poses``: the pre-pass, :class:`PoseCalibratedSe
 from .config import RunSettings, config_from_dict, config_to_dict, dump_config, load_config
 from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path, staging_path
 from .outputs import RunOutputs
+from .interrupt import Terminated, deferred_interrupts, raise_if_interrupted, raise_terminated
 from .overlap import OrderedWriter, Prefetcher
 from .pose_calibration import PoseCalibratedSequence, calibrate_run_poses
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
@@ -76,14 +78,18 @@ __all__ = [
     "calibrate_run_poses",
     "RunSummary",
     "SinkFactory",
+    "Terminated",
     "TrajectoryReport",
     "backfill_leading_frames",
     "config_from_dict",
     "config_to_dict",
+    "deferred_interrupts",
     "dump_config",
     "format_table",
     "frame_record",
     "load_config",
+    "raise_if_interrupted",
+    "raise_terminated",
     "read_frames_jsonl",
     "run_header",
     "run_sequence",

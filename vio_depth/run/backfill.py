@@ -19,6 +19,7 @@ from ..io import Sequence
 from ..pipeline import FrameStatus, Pipeline
 from .frame_loop import prepare_frame
 from .frame_writer import FrameWriter
+from .interrupt import raise_if_interrupted
 from .overlap import OrderedWriter, Prefetcher
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,7 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     with Prefetcher(lambda i: prepare_frame(sequence, backward, i, features.get(i)), range(last, -1, -1),
                     workers + 1, threaded=overlap, workers=workers) as frames:
         for i in range(last, -1, -1):
+            raise_if_interrupted()
             prepared = frames.get()
             res = backward.process_prepared(prepared)
             if i in lead and res.depth is not None:

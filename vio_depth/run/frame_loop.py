@@ -21,6 +21,7 @@ from matchers import Features
 from ..io import Sequence
 from ..pipeline import Pipeline, PreparedFrame
 from .frame_writer import FrameWriter
+from .interrupt import raise_if_interrupted
 from .overlap import OrderedWriter, Prefetcher, TorchThreads
 
 
@@ -66,6 +67,7 @@ def forward_pass(sequence: Sequence, pipeline: Pipeline, n: int, frames_out: Fra
     with Prefetcher(lambda i: prepare_frame(sequence, pipeline, i), range(n), workers + 1, threaded=overlap,
                     workers=workers) as frames:
         for i in bar:
+            raise_if_interrupted()  # a signal during the last frame: here, with no lock held
             prepared = frames.get()
             res = pipeline.process_prepared(prepared)
             if torch_threads is not None:

@@ -54,6 +54,8 @@ from typing import Any, Callable, Iterable, Iterator
 import cv2
 from threadpoolctl import threadpool_limits
 
+from .interrupt import raise_if_interrupted
+
 #: items a worker may run ahead of the pipeline (prefetched frames, results waiting to be written)
 DEFAULT_DEPTH = 2
 _POLL_S = 0.05
@@ -218,6 +220,7 @@ class Prefetcher:
             while self._delivered not in self._ready:
                 if self._delivered >= len(self._indices) or not any(t.is_alive() for t in self._threads):
                     raise StopIteration
+                raise_if_interrupted()  # a slow producer does not hold up Ctrl-C
                 self._cond.wait(_POLL_S)
             value, exc = self._ready.pop(self._delivered)
             self._delivered += 1

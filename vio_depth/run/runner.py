@@ -37,6 +37,7 @@ from .finish import finish_run
 from .folder import OutputFolder, OutputMode
 from .frame_loop import forward_pass
 from .frame_writer import FrameWriter
+from .interrupt import deferred_interrupts
 from .overlap import (
     OrderedWriter,
     TorchThreads,
@@ -174,16 +175,17 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
     backfill_s = 0.0
     backfill = settings.backfill and pipeline.points is not None
     try:
-        # the backward pass re-uses the features of the first frames (bounded: see keep_features),
-        # except a tracking matcher's: it follows the frames backwards again (its forward track ids
-        # would not join the backward ones, and tracking costs little)
-        features = forward_pass(sequence, pipeline, n, frames_out, writer, progress=progress, overlap=overlap,
-                                workers=workers, torch_threads=torch_threads,
-                                keep=backfill and pipeline.tracked is None)
-        if backfill:
-            backfill_s = backfill_pass(sequence, pipeline, n, frames_out, writer, features, overlap=overlap,
-                                       workers=workers)
-        writer.finish()
+        with deferred_interrupts():  # Ctrl-C / SIGTERM between frames, never inside a worker's lock
+            # the backward pass re-uses the features of the first frames (bounded: see keep_features),
+            # except a tracking matcher's: it follows the frames backwards again (its forward track ids
+            # would not join the backward ones, and tracking costs little)
+            features = forward_pass(sequence, pipeline, n, frames_out, writer, progress=progress, overlap=overlap,
+                                    workers=workers, torch_threads=torch_threads,
+                                    keep=backfill and pipeline.tracked is None)
+            if backfill:
+                backfill_s = backfill_pass(sequence, pipeline, n, frames_out, writer, features, overlap=overlap,
+                                           workers=workers)
+            writer.finish()
     except BaseException:
         writer.drain_quietly()  # the frames already handed over are completed and journaled
         raise

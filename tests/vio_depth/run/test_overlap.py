@@ -4,6 +4,7 @@ and an interruption leaves no half-written file and a resumable staging folder."
 
 import json
 import os
+import signal
 import sys
 import threading
 import time
@@ -17,7 +18,15 @@ from vio_depth import Pipeline, open_sequence, run_sequence
 from vio_depth.cli import main
 from vio_depth.disparity import DisparitySettings, create_disparity_source
 from vio_depth.io.depth_png import read_depth_png
-from vio_depth.run import OrderedWriter, Prefetcher, RunSettings, read_frames_jsonl, staging_path
+from vio_depth.run import (
+    OrderedWriter,
+    Prefetcher,
+    RunSettings,
+    Terminated,
+    raise_terminated,
+    read_frames_jsonl,
+    staging_path,
+)
 from vio_depth.run.folder import JOURNAL_NAME
 
 VOLATILE = ("seconds", "timings")
@@ -234,6 +243,41 @@ def test_interruption_leaves_complete_files_and_a_resumable_folder(mini_street, 
             assert read_depth_png(staging / "depth" / f"{r['stem']}.png").shape == (256, 640)
             assert read_depth_png(staging / "uncertainty" / f"{r['stem']}.png").shape == (256, 640)
     summary = run_sequence(seq, Pipeline(sequence=seq), out, RunSettings(uncertainty=True), mode="resume")
+    assert summary.resumed_frames == 7 and summary.frames_processed == 10
+
+
+class _SignalAt(_InterruptAt):
+    """A pipeline wrapper that sends this process ``signum`` while frame ``k`` is processed."""
+
+    def __init__(self, pipeline: Pipeline, k: int, signum: int):
+        super().__init__(pipeline, k)
+        self._signum = signum
+
+    def process_prepared(self, prepared):
+        if prepared.frame.index == self._k:
+            signal.raise_signal(self._signum)
+        return self._pipeline.process_prepared(prepared)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_signal_mid_frame_finishes_that_frame_then_stops_resumably(mini_street, tmp_path, signum):
+    """Ctrl-C / SIGTERM land between frames (vio_depth.run.interrupt), not inside a worker
+    thread's lock: frame k is completed and journaled, the run stops, --resume finishes it."""
+    path = mini_street(10)
+    seq = open_sequence(path)
+    out = tmp_path / "out"
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, raise_terminated)
+    try:
+        with pytest.raises(Terminated if signum == signal.SIGTERM else KeyboardInterrupt):
+            run_sequence(seq, _SignalAt(Pipeline(sequence=seq), 6, signum), out, RunSettings())
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
+    assert not out.exists()
+    assert [r["frame"] for r in _journaled(out)] == list(range(7))
+    summary = run_sequence(seq, Pipeline(sequence=seq), out, RunSettings(), mode="resume")
     assert summary.resumed_frames == 7 and summary.frames_processed == 10
 
 
