@@ -22,6 +22,7 @@ from .errors import (
     lookup,
 )
 from .geometry import (
+    adjoint,
     invert_transform,
     make_transform,
     relative_transform,
@@ -36,6 +37,7 @@ from .settings import Presets, override, require_positive, to_plain, toml_dumps,
 from .stats import chi2_quantile
 
 __all__ = [
+    "adjoint",
     "Camera",
     "CorruptImageError",
     "environ",

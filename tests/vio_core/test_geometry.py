@@ -1,11 +1,13 @@
-"""Rigid transforms: inverse, relative poses, TUM rows, rotation angles."""
+"""Rigid transforms: inverse, relative poses, TUM rows, rotation angles, adjoints."""
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from vio_core import (
     ShapeError,
+    adjoint,
     check_transform,
     invert_transform,
     make_transform,
@@ -62,3 +64,19 @@ def test_invalid_transforms_are_refused():
         check_transform("T", T)
     with pytest.raises(ShapeError, match="R"):
         make_transform(np.eye(2), np.zeros(3))
+
+
+def test_adjoint_maps_right_perturbations():
+    rng = np.random.default_rng(3)
+    A = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
+    T = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
+    xi = rng.normal(scale=1e-4, size=6)
+    def hat(x):
+        M = np.zeros((4, 4))
+        M[:3, :3] = [[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]]
+        M[:3, 3] = x[3:]
+        return M
+
+    lhs = A @ T @ expm(hat(xi)) @ invert_transform(A)
+    rhs = A @ T @ invert_transform(A) @ expm(hat(adjoint(A) @ xi))
+    np.testing.assert_allclose(lhs, rhs, atol=1e-10)

@@ -37,7 +37,6 @@ from .imu_state import ImuPoseSettings, NavEstimate
 from .preintegration import (
     ImuIntegration,
     WindowFit,
-    adjoint,
     fit_window,
     gravity_aligned_rotation,
     import_gtsam,
@@ -74,7 +73,6 @@ __all__ = [
     "StaticInitSettings",
     "TrackingPoseSource",
     "WindowFit",
-    "adjoint",
     "calibrated_poses",
     "calibration_pairs",
     "detect_still_interval",

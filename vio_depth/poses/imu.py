@@ -69,14 +69,13 @@ import numpy as np
 
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import InputError
-from vio_core.geometry import invert_transform
+from vio_core.geometry import adjoint, invert_transform
 
 from ..frame import Frame, ImuData
 from .base import RelativePose
 from .imu_state import ImuPoseSettings, NavEstimate
 from .preintegration import (
     WindowFit,
-    adjoint,
     fit_window,
     gravity_aligned_rotation,
     integrate_interval,

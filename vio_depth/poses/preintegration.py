@@ -329,18 +329,6 @@ def fit_window(imu: ImuData, params, times, T_w_i, settings: ImuPoseSettings = I
     return WindowFit(b_a0 + db_a, b_g0 + db_g, v_last, 0.5 * (cov_v + cov_v.T), 0.5 * (bias_cov + bias_cov.T))
 
 
-def adjoint(T) -> np.ndarray:
-    """(6, 6) adjoint of the rigid transform ``T: (4, 4)`` in (rotation, translation) order."""
-    T = check_transform("T", T)
-    R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[3:, :3] = tx @ R
-    A[3:, 3:] = R
-    return A
-
-
 def gravity_aligned_rotation(mean_accel, gravity_w) -> np.ndarray:
     """(3, 3) ``R_w_i`` such that the IMU reading ``mean_accel`` (3,) m/s^2 opposes ``gravity_w`` (3,) m/s^2.
 

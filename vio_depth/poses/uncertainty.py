@@ -39,10 +39,8 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import SettingsError
-from vio_core.geometry import invert_transform, rotation_angle_deg
+from vio_core.geometry import adjoint, invert_transform, rotation_angle_deg
 from vio_core.settings import Presets
-
-from .preintegration import adjoint
 
 
 @dataclass(frozen=True)

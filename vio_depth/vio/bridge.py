@@ -15,10 +15,9 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vio_core.geometry import invert_transform
+from vio_core.geometry import adjoint, invert_transform
 
 from ..landmarks import LandmarkWindow
-from ..poses import adjoint
 from .history import PoseHistory
 from .imu_factors import ImuFactors
 

@@ -32,9 +32,7 @@ import numpy as np
 
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import ShapeError
-from vio_core.geometry import invert_transform
-
-from ..poses import adjoint
+from vio_core.geometry import adjoint, invert_transform
 
 
 @dataclass(frozen=True)

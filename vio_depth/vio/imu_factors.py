@@ -32,11 +32,11 @@ import numpy as np
 
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import InputError, NumericalError
-from vio_core.geometry import invert_transform
+from vio_core.geometry import adjoint, invert_transform
 
 from ..frame import ImuData
 from ..landmarks import KeyframeInput, MotionFactors
-from ..poses import adjoint, preintegrate, preintegration_params
+from ..poses import preintegrate, preintegration_params
 from .settings import VioSettings
 
 #: stiffness of the camera-IMU mounting factor (rad, m)

@@ -11,7 +11,7 @@ from vio_core.errors import InputError
 from vio_core.geometry import invert_transform, make_transform, relative_transform, rotation_angle_deg
 from vio_depth.evaluation import mean_nees_bounds, nees
 from vio_depth.frame import Frame, ImuData
-from vio_depth.poses.imu import ImuPoseSettings, ImuPoseSource, adjoint
+from vio_depth.poses.imu import ImuPoseSettings, ImuPoseSource
 
 REPO = Path(__file__).resolve().parents[3]
 KITTI = REPO / ".." / "shared" / "data" / "kitti_tiny"
@@ -234,24 +234,6 @@ def test_refusals_are_statuses_with_reasons():
 def test_for_sequence_without_imu():
     with pytest.raises(InputError, match="sequence has no IMU"):
         ImuPoseSource.for_sequence(FrameList([], imu=None))
-
-
-def test_adjoint_maps_right_perturbations():
-    rng = np.random.default_rng(3)
-    A = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
-    T = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
-    xi = rng.normal(scale=1e-4, size=6)
-    from scipy.linalg import expm
-
-    def hat(x):
-        M = np.zeros((4, 4))
-        M[:3, :3] = [[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]]
-        M[:3, 3] = x[3:]
-        return M
-
-    lhs = A @ T @ expm(hat(xi)) @ invert_transform(A)
-    rhs = A @ T @ invert_transform(A) @ expm(hat(adjoint(A) @ xi))
-    np.testing.assert_allclose(lhs, rhs, atol=1e-10)
 
 
 @pytest.mark.shared_data
