@@ -42,9 +42,16 @@ what the two paths do differently).
 
 ``s/fr mean``: the run's mean pipeline seconds per frame (keyframe frames, which cost the
 landmark path most, weigh in by their share instead of falling on one side of the median).
+``pts CPU ms``: the points stage's CPU per frame in its calling thread; ``run CPU s/fr``: the
+whole run's process CPU seconds per frame (every thread, evaluation and writing included):
+both move much less with other jobs on the machine than wall time.
+
+``--guided``: pose-guided matching (``--guided-matching``, :mod:`matchers.guided`) in both paths:
+the two-view pairs and the window's keyframes are matched inside the epipolar band of the pose
+known before matching (SIFT only).
 
 Run: ``python benchmarks/bench_landmarks.py [--datasets 7scenes,kitti,street,room]
-[--frames N] [--data DIR] [--paths two-view,landmarks] [--matcher sift|klt] [--edge-guard F]``
+[--frames N] [--data DIR] [--paths two-view,landmarks] [--matcher sift|klt] [--edge-guard F] [--guided]``
 (``--matcher klt --edge-guard 0.1``: the KLT front end as ``vio-depth run --matcher klt
 --edge-guard 0.1``). Seconds per frame are printed: compare them only within one run.
 
@@ -109,11 +116,14 @@ PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}}
 
 
 def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",
-             edge_guard: float | None = None) -> tuple[dict, list[dict]]:
+             edge_guard: float | None = None, guided: bool = False) -> tuple[dict, list[dict]]:
     """One path over the first ``n`` frames: ``(metrics.json, frame records)``; ``matcher`` a
-    matcher preset, ``edge_guard`` the rescaler's ``max_disparity_spread`` (``--edge-guard``) or None."""
+    matcher preset, ``edge_guard`` the rescaler's ``max_disparity_spread`` (``--edge-guard``) or None,
+    ``guided``: pose-guided matching (``--guided-matching``) in both paths."""
     settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing, matcher=matcher)
     overrides = {"disparity": {"source": ds.disparity}}
+    if guided:
+        overrides["matcher"] = {"guided": {"enabled": True}}
     if path in PATH_LANDMARKS:
         overrides["landmarks"] = PATH_LANDMARKS[path]
     if edge_guard is not None:
@@ -174,7 +184,8 @@ def format_row(path: str, metrics: dict, frames: list[dict]) -> str:
             f"{metrics['frames_with_depth']:4d}/{metrics['frames_processed']:<4d} {len(bad):5d} "
             f"{_median(f['seconds'] for f in frames):6.3f} "
             f"{_mean_ms(f.get('timings', {}).get('points') for f in frames):7.1f} "
-            f"{_mean_ms(f['seconds'] for f in frames) / 1000:10.3f}")
+            f"{_mean_ms(f['seconds'] for f in frames) / 1000:10.3f} "
+            f"{LAST_CPU.get('points_ms', float('nan')):10.1f} {LAST_CPU.get('run_s', float('nan')):12.3f}")
     line += f"\n  {path} statuses: {statuses}"
     if bad:
         line += f"\n  {path} ok frames above 2 x oracle + 0.02: {bad[:40]}" + (" ..." if len(bad) > 40 else "")
@@ -190,6 +201,8 @@ def main(argv=None) -> int:
     parser.add_argument("--matcher", default="sift", help="matcher preset (sift, klt, ...)")
     parser.add_argument("--edge-guard", type=float, default=None, metavar="F",
                         help="the rescaler's max_disparity_spread, as vio-depth run --edge-guard")
+    parser.add_argument("--guided", action="store_true",
+                        help="pose-guided matching in both paths (--guided-matching; SIFT only)")
     parser.add_argument("--baseline-rev", default=None, help="A/B: also run this revision's code, alternating")
     parser.add_argument("--repeats", type=int, default=1, help="A/B: runs of each side")
     parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # internal: one A/B side
@@ -200,12 +213,14 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(summaries(args)))
         return 0
-    print(f"bench_landmarks (matcher {args.matcher}, edge guard {args.edge_guard}), {datetime.date.today()}, "
+    print(f"bench_landmarks (matcher {args.matcher}, edge guard {args.edge_guard}, guided {args.guided}), "
+          f"{datetime.date.today()}, "
           f"{platform.machine()}, {os.cpu_count()} CPU cores, "
           f"python {platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.1f}")
     print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
     head = (f"{'path':10s} {'pt med':>7s} {'pt p90':>7s} {'bias':>7s} {'pts/fr':>6s} {'AbsRel':>7s} "
-            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s} {'pts ms':>7s} {'s/fr mean':>10s}")
+            f"{'delta1':>7s} {'oracle':>7s} {'x oracle':>8s} {'depth':>9s} {'bad ok':>6s} {'s/fr':>6s} {'pts ms':>7s} {'s/fr mean':>10s} "
+            f"{'pts CPU ms':>10s} {'run CPU s/fr':>12s}")
     for name in args.datasets.split(","):
         ds = DATASETS[name]
         folder = ds.folder(args.data)
@@ -218,7 +233,8 @@ def main(argv=None) -> int:
               f"'{ds.pairing}', landmark pose prior '{sequence.pose_kind}'\n{head}")
         with tempfile.TemporaryDirectory() as tmp:
             for path in args.paths.split(","):
-                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard)
+                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard,
+                                           args.guided)
                 print(format_row(path, metrics, frames), flush=True)
     return 0
 
@@ -235,7 +251,8 @@ def summaries(args) -> list[dict]:
         n = min(len(sequence), ds.frames or len(sequence), args.frames or len(sequence))
         with tempfile.TemporaryDirectory() as tmp:
             for path in args.paths.split(","):
-                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard)
+                metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard,
+                                           args.guided)
                 out.append({"dataset": name, "path": path, "frames": n,
                             "pts_ms": _mean_ms(f.get("timings", {}).get("points") for f in frames),
                             "s_median": _median(f["seconds"] for f in frames),
@@ -256,14 +273,15 @@ def ab_main(args) -> int:
 
     head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True).stdout.strip()
-    print(f"bench_landmarks A/B (matcher {args.matcher}, edge guard {args.edge_guard}), "
+    print(f"bench_landmarks A/B (matcher {args.matcher}, edge guard {args.edge_guard}, guided {args.guided}), "
           f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, "
           f"{os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}; baseline {args.baseline_rev}, "
           f"this checkout at {head} (plus any uncommitted changes)")
     print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
     passed = ["--datasets", args.datasets, "--paths", args.paths, "--data", str(args.data), "--matcher", args.matcher,
               "--json"] + (["--frames", str(args.frames)] if args.frames else []) \
-        + (["--edge-guard", str(args.edge_guard)] if args.edge_guard is not None else [])
+        + (["--edge-guard", str(args.edge_guard)] if args.edge_guard is not None else []) \
+        + (["--guided"] if args.guided else [])
     rows = []
     with tempfile.TemporaryDirectory() as tmp, baseline_checkout(args.baseline_rev, Path(tmp) / "baseline") as base:
         for k in range(args.repeats):
