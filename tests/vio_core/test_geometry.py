@@ -71,6 +71,7 @@ def test_adjoint_maps_right_perturbations():
     A = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
     T = make_transform(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
     xi = rng.normal(scale=1e-4, size=6)
+
     def hat(x):
         M = np.zeros((4, 4))
         M[:3, :3] = [[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]]

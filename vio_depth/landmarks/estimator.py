@@ -7,7 +7,7 @@ features (extracted once by the caller, as the pipeline does):
    (their features are kept while they are in the window); a matcher that can use a known
    relative pose (:class:`matchers.PoseGuidedMatcher`, e.g. SIFT with ``[matcher.guided]``
    on) gets each keyframe's pose relative to the frame's prior, with their covariance
-   (:meth:`LandmarkEstimator.epipolar_prior`), as the two-view path gives its pairs';
+   (:meth:`LandmarkEstimator.epipolar_priors`), as the two-view path gives its pairs';
 2. its landmark points are queried (:meth:`LandmarkWindow.query`);
 3. it becomes a keyframe when the two-view geometry with the newest keyframe predicts a
    median relative depth sigma below ``keyframe_relative_sigma`` (enough new parallax,
@@ -284,22 +284,27 @@ class LandmarkEstimator:
         return float(np.median(s / np.maximum(d, 1e-12)))
 
     @staticmethod
-    def epipolar_prior(window, keyframe: int, camera: Camera, T_w_c, prior_covariance=None) -> EpipolarPrior:
-        """The frame's pose relative to a keyframe of ``window``, for pose-guided matching.
+    def epipolar_priors(window, keyframes: Sequence[int], camera: Camera, T_w_c,
+                        prior_covariance=None) -> list[EpipolarPrior]:
+        """The frame's pose relative to each of ``keyframes`` of ``window``, for pose-guided matching.
 
         The frame's prior (:func:`~.query.frame_prior`: ``T_w_c`` (4, 4) camera-to-world,
         metres, corrected like the newest keyframe; ``prior_covariance`` (6, 6) or None as
-        there) in ``keyframe``'s camera. Its covariance: the frame's relative to the newest
+        there) in each keyframe's camera. Its covariance: the frame's relative to the newest
         keyframe plus the keyframe's relative to it (the window's conditional covariance),
         carried into the frame's perturbation (right, rotation rad then translation m);
         their correlation is left out (a wider band, never a narrower one for it).
         """
         T0, cov_frame = frame_prior(window, T_w_c, (), prior_covariance)
-        T_k_cur = invert_transform(window.pose(keyframe)) @ T0
-        cov_k = window.relative_covariances()[window.keyframe_ids.index(keyframe)]
-        A = adjoint(invert_transform(T_k_cur))  # the keyframe's right perturbation, as the frame's
-        cov = cov_frame + A @ cov_k @ A.T
-        return EpipolarPrior(camera, window.keyframe(keyframe).camera, T_k_cur, 0.5 * (cov + cov.T))
+        relative = window.relative_covariances()
+        ids = window.keyframe_ids
+        priors = []
+        for k in keyframes:
+            T_k_cur = invert_transform(window.pose(k)) @ T0
+            A = adjoint(invert_transform(T_k_cur))  # the keyframe's right perturbation, as the frame's
+            cov = cov_frame + A @ relative[ids.index(k)] @ A.T
+            priors.append(EpipolarPrior(camera, window.keyframe(k).camera, T_k_cur, 0.5 * (cov + cov.T)))
+        return priors
 
     def process(self, frame_id: int, timestamp: float, camera: Camera, T_w_c, features,
                 prior_covariance=None) -> FrameLandmarks:
@@ -328,9 +333,10 @@ class LandmarkEstimator:
                                   "first frame", 0, float("inf"), update, landed=landed)
         newest_first = w.keyframe_ids[::-1][: s.match_keyframes]
         if isinstance(self.matcher, PoseGuidedMatcher):
-            matches = [FrameMatches.from_matches(k, self.matcher.match_with_pose(
-                features, self._keyframe_features_any(k), self.epipolar_prior(w, k, camera, T_w_c, prior_covariance)))
-                for k in newest_first]
+            priors = self.epipolar_priors(w, newest_first, camera, T_w_c, prior_covariance)
+            matches = [FrameMatches.from_matches(k, self.matcher.match_with_pose(features, self._keyframe_features_any(k),
+                                                                                 prior))
+                       for k, prior in zip(newest_first, priors)]
         else:
             matches = [FrameMatches.from_matches(k, self.matcher.match(features, self._keyframe_features_any(k)))
                        for k in newest_first]

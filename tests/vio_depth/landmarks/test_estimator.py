@@ -77,12 +77,11 @@ def test_the_guided_band_is_wider_for_an_older_keyframe_and_for_a_looser_prior()
     assert len(w.keyframe_ids) >= 3
     newest, older = w.keyframe_ids[-1], w.keyframe_ids[0]
     k = 10
-    near = LandmarkEstimator.epipolar_prior(w, newest, scene.camera, scene.T_prior[k])
-    far = LandmarkEstimator.epipolar_prior(w, older, scene.camera, scene.T_prior[k])
+    near, far = LandmarkEstimator.epipolar_priors(w, [newest, older], scene.camera, scene.T_prior[k])
     # an older keyframe is less certain relative to the newest: its pose adds to the frame's
     assert np.trace(far.covariance) > np.trace(near.covariance)
-    loose = LandmarkEstimator.epipolar_prior(w, newest, scene.camera, scene.T_prior[k],
-                                            prior_covariance=100.0 * near.covariance)
+    (loose,) = LandmarkEstimator.epipolar_priors(w, [newest], scene.camera, scene.T_prior[k],
+                                                 prior_covariance=100.0 * near.covariance)
     assert np.trace(loose.covariance) > 50 * np.trace(near.covariance)
     # the pose is the frame's prior in the keyframe's camera (the window barely moves it here)
     T = invert_transform(w.pose(newest)) @ scene.T_prior[k]
