@@ -1,7 +1,7 @@
 """Benchmark: is the written depth trustworthy? Refusals, coverage and calibration (issue 20).
 
 For each dataset and points path, the same run (`vio-depth run` through
-:func:`vio_depth.run.run_sequence`, SIFT, the sequence's poses, seed 0, CLI defaults) is
+:func:`vio_depth.run.run_sequence`, SIFT unless ``--matcher``, the sequence's poses, seed 0, CLI defaults) is
 made twice in this one benchmark run:
 
 * ``baseline`` -- the named baseline revision (``--baseline-rev``, default ``234a51e``,
@@ -34,7 +34,10 @@ the mean actual error: ``predicted_error`` against the rescaling's own error
 than a factor of 2.
 
 Run: ``python benchmarks/bench_trust.py [--datasets 7scenes,kitti,street,room]
-[--paths two-view,landmarks] [--data DIR] [--baseline-rev REV | --no-baseline]``.
+[--paths two-view,landmarks] [--data DIR] [--baseline-rev REV | --no-baseline]
+[--matcher sift|klt] [--edge-guard F]`` (``--matcher klt --edge-guard 0.1``: the KLT front end
+as ``vio-depth run --matcher klt --edge-guard 0.1``; both sides get the same; a baseline older
+than the matcher presets it names fails).
 """
 
 from __future__ import annotations
@@ -67,19 +70,23 @@ sys.path.insert(0, sys.argv[1])
 from pathlib import Path
 from vio_depth import Pipeline, PipelineSettings, open_sequence
 from vio_depth.run import RunSettings, run_sequence
-folder, points, pairing, disparity, n, max_depth, out = sys.argv[2:9]
-settings = PipelineSettings.from_presets(points=points, pairing=pairing)
-settings = PipelineSettings.from_dict({"disparity": {"source": disparity}}, settings)
+folder, points, pairing, disparity, n, max_depth, out, matcher, guard = sys.argv[2:11]
+settings = PipelineSettings.from_presets(points=points, pairing=pairing, matcher=matcher)
+overrides = {"disparity": {"source": disparity}}
+if guard != "none":
+    overrides["rescaler"] = {"max_disparity_spread": float(guard)}
+settings = PipelineSettings.from_dict(overrides, settings)
 seq = open_sequence(folder)
 run_sequence(seq, Pipeline(settings, sequence=seq), Path(out),
              RunSettings(max_frames=int(n), max_eval_depth=float(max_depth)), progress=False)
 """
 
 
-def run(checkout: Path, ds: Dataset, folder: Path, n: int, path: str, out: Path) -> tuple[dict, list[dict]]:
+def run(checkout: Path, ds: Dataset, folder: Path, n: int, path: str, out: Path, matcher: str = "sift",
+        edge_guard: float | None = None) -> tuple[dict, list[dict]]:
     """One run in a subprocess with ``checkout``'s packages: ``(metrics.json, frame records)``."""
     cmd = [sys.executable, "-c", _RUNNER, str(checkout), str(folder), PATHS[path], ds.pairing, ds.disparity,
-           str(n), str(ds.max_depth), str(out)]
+           str(n), str(ds.max_depth), str(out), matcher, "none" if edge_guard is None else str(edge_guard)]
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
     if not (out / "metrics.json").exists():
         raise RuntimeError(f"run failed ({checkout.name}, {ds.name}, {path}): {proc.stderr[-2000:]}")
@@ -148,10 +155,14 @@ def main(argv=None) -> int:
     parser.add_argument("--no-baseline", action="store_true")
     parser.add_argument("--frames", type=int, default=None, help="cap every dataset at N frames")
     parser.add_argument("--json", type=Path, default=None, help="also write every summary and table here")
+    parser.add_argument("--matcher", default="sift", help="matcher preset (sift, klt, ...), both sides")
+    parser.add_argument("--edge-guard", type=float, default=None, metavar="F",
+                        help="the rescaler's max_disparity_spread, as vio-depth run --edge-guard (both sides)")
     args = parser.parse_args(argv)
     print(f"bench_trust, {datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPU cores, python "
           f"{platform.python_version()}, load average {os.getloadavg()[0]:.1f}, baseline "
-          f"{'none' if args.no_baseline else args.baseline_rev}")
+          f"{'none' if args.no_baseline else args.baseline_rev}, matcher {args.matcher}, edge guard "
+          f"{args.edge_guard}")
     print("NOTE: dense figures use SIMULATED disparity on every dataset (see the module docstring)")
     report = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -172,7 +183,8 @@ def main(argv=None) -> int:
                     print(f"\n{name} ({folder.name}), {path}, pairing '{ds.pairing}', max depth {ds.max_depth:g} m",
                           flush=True)
                     for label, checkout in checkouts.items():
-                        metrics, frames = run(checkout, ds, folder, n, path, tmp / f"{label}-{name}-{path}")
+                        metrics, frames = run(checkout, ds, folder, n, path, tmp / f"{label}-{name}-{path}",
+                                              args.matcher, args.edge_guard)
                         s = summary(metrics, frames, PATHS[path])
                         print_row(label, s)
                         report[f"{name}/{path}/{label}"] = s
