@@ -61,6 +61,14 @@ class KltSettings:
     Attributes:
         max_tracks: corners kept per frame (VINS-Mono 150, OpenVINS 200-400); top-up adds new
             corners while fewer survive.
+        top_up_below: new corners are searched for only when fewer than this fraction of
+            ``max_tracks`` tracks survive (1: at every frame that lost one). The corner search
+            (``goodFeaturesToTrack`` over the whole image) is the tracker's largest cost: 10 ms
+            of a 752x564 frame on the 2-core machine, against 4 ms for one flow. At 0.9 the
+            generated 752x564 ASL loop is searched at 67 of 200 frames (tracking 19.8 -> 10.8
+            ms a frame, 478 tracks on average instead of 499) and its ``--poses vio`` ATE went
+            from 4.1 to 3.4 mm; the 640x256 street never holds 450 corners, so nothing changes
+            there (docs/benchmarks.md, "KLT: fewer corner searches").
         min_distance_px: the spacing of corners: at most one track per cell of this size, and
             new corners at least this far from each other and about this far from tracks.
         quality: ``goodFeaturesToTrack``'s quality level (fraction of the strongest corner).
@@ -77,6 +85,7 @@ class KltSettings:
     """
 
     max_tracks: int = 500
+    top_up_below: float = 0.9
     min_distance_px: float = 12.0
     quality: float = 0.01
     block_size: int = 3
@@ -99,6 +108,8 @@ class KltSettings:
         if isinstance(self.pyramid_levels, bool) or not isinstance(self.pyramid_levels, int) \
                 or self.pyramid_levels < 0:
             raise SettingsError(f"klt.pyramid_levels must be an integer >= 0, got {self.pyramid_levels!r}")
+        if not (isinstance(self.top_up_below, (int, float)) and 0 < self.top_up_below <= 1):
+            raise SettingsError(f"klt.top_up_below must be in (0, 1], got {self.top_up_below!r}")
         if not 0 < self.quality < 1:
             raise SettingsError(f"klt.quality must be in (0, 1), got {self.quality}")
         require_positive(self, "min_distance_px", "ransac_px")
@@ -322,7 +333,7 @@ class KltTracker:
         thinned = len(uv) - len(keep)
         uv, ids, age = uv[keep], ids[keep], age[keep] + 1
         n_new = 0
-        if len(uv) < s.max_tracks:
+        if len(uv) < s.max_tracks and len(uv) < s.top_up_below * s.max_tracks:
             corners = cv2.goodFeaturesToTrack(grey, s.max_tracks - len(uv), s.quality, s.min_distance_px,
                                               mask=free_mask(uv, s.min_distance_px, w, h), blockSize=s.block_size)
             if corners is not None:

@@ -54,7 +54,8 @@ def test_preset_is_a_frame_tracker():
 
 
 @pytest.mark.parametrize("bad", [dict(max_tracks=0), dict(window_px=20), dict(quality=1.0), dict(ransac_px=0.0),
-                                 dict(back_check_px=-1.0), dict(pyramid_levels=-1), dict(max_tracks=True)])
+                                 dict(back_check_px=-1.0), dict(pyramid_levels=-1), dict(max_tracks=True),
+                                 dict(top_up_below=0.0), dict(top_up_below=1.5)])
 def test_settings_refuse_bad_values(bad):
     with pytest.raises(SettingsError):
         KltSettings(**bad)
@@ -174,3 +175,19 @@ def test_top_up_refills_where_tracks_left_the_image():
     s = tr.last_stats
     assert s.lost_flow > 0 and s.new > 0
     assert s.tracks == len(b) <= tr.settings.max_tracks
+
+
+def test_top_up_waits_until_enough_tracks_are_lost():
+    """With ``top_up_below`` 0.9 a frame that keeps 90 % of ``max_tracks`` searches no new corners
+    (the search is the tracker's largest cost); one that loses more does; 1.0 refills any loss."""
+    big = texture(7)
+    for frac, R, expect_new in ((0.9, rot_y(1.0), False), (1.0, rot_y(1.0), True), (0.9, rot_y(20.0), True)):
+        tr = KltTracker(KltSettings(top_up_below=frac))
+        a = tr.track(view(big))
+        assert len(a) >= 0.99 * tr.settings.max_tracks  # the texture holds (nearly) all
+        tr.track(view(big, R), MotionHint(CAMERA, R))
+        s = tr.last_stats
+        kept = s.previous - s.lost_flow - s.lost_back - s.lost_epipolar - s.thinned
+        assert kept < s.previous  # some were lost either way
+        assert (kept < frac * tr.settings.max_tracks) == expect_new
+        assert (s.new > 0) == expect_new, (frac, kept, s)

@@ -47,6 +47,7 @@ SETTING_RANGES: dict[str, str] = {
     "LearnedMatcherSettings.max_keypoints": "[1, inf)",
     "LearnedMatcherSettings.max_side": "[32, inf)",
     "KltSettings.max_tracks": "[1, inf)",
+    "KltSettings.top_up_below": "(0, 1]",
     "KltSettings.min_distance_px": "(0, inf)",
     "KltSettings.quality": "(0, 1)",
     "KltSettings.block_size": "[1, inf)",
