@@ -23,7 +23,9 @@ from .errors import (
 )
 from .geometry import (
     adjoint,
+    adjoints,
     invert_transform,
+    invert_transforms,
     make_transform,
     relative_transform,
     rotation_angle_deg,
@@ -38,6 +40,7 @@ from .stats import chi2_quantile
 
 __all__ = [
     "adjoint",
+    "adjoints",
     "Camera",
     "CorruptImageError",
     "environ",
@@ -56,6 +59,7 @@ __all__ = [
     "check_image",
     "check_transform",
     "invert_transform",
+    "invert_transforms",
     "load_array",
     "lookup",
     "make_transform",

@@ -75,6 +75,31 @@ def skew(v) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def invert_transforms(T) -> np.ndarray:
+    """Inverses of a stack of rigid transforms ``T: (N, 4, 4)`` ``T_a_b`` -> ``T_b_a`` (N, 4, 4)."""
+    T = check_array("T", T, (None, 4, 4), finite=True)
+    Rt = np.swapaxes(T[:, :3, :3], 1, 2)
+    out = np.zeros_like(T)
+    out[:, :3, :3] = Rt
+    out[:, :3, 3] = -np.einsum("nij,nj->ni", Rt, T[:, :3, 3])
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def adjoints(T) -> np.ndarray:
+    """(N, 6, 6) :func:`adjoint` of each rigid transform of ``T: (N, 4, 4)``."""
+    T = check_array("T", T, (None, 4, 4), finite=True)
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    S = np.zeros((len(T), 3, 3))  # skew(t) per transform
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -t[:, 2], t[:, 1], -t[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = t[:, 2], -t[:, 1], t[:, 0]
+    A = np.zeros((len(T), 6, 6))
+    A[:, :3, :3] = R
+    A[:, 3:, :3] = S @ R
+    A[:, 3:, 3:] = R
+    return A
+
+
 def adjoint(T) -> np.ndarray:
     """(6, 6) adjoint of the rigid transform ``T: (4, 4)`` in (rotation, translation) order:
     ``T Exp(xi) = Exp(adjoint(T) xi) T``, so a right-perturbation covariance ``S`` of a pose

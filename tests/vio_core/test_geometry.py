@@ -8,8 +8,10 @@ from scipy.spatial.transform import Rotation
 from vio_core import (
     ShapeError,
     adjoint,
+    adjoints,
     check_transform,
     invert_transform,
+    invert_transforms,
     make_transform,
     relative_transform,
     rotation_angle_deg,
@@ -81,3 +83,16 @@ def test_adjoint_maps_right_perturbations():
     lhs = A @ T @ expm(hat(xi)) @ invert_transform(A)
     rhs = A @ T @ invert_transform(A) @ expm(hat(adjoint(A) @ xi))
     np.testing.assert_allclose(lhs, rhs, atol=1e-10)
+
+
+def test_stacked_inverses_and_adjoints_match_the_single_ones():
+    rng = np.random.default_rng(4)
+    T = np.stack([_random_pose(rng) for _ in range(5)])
+    inv, adj = invert_transforms(T), adjoints(T)
+    assert inv.shape == (5, 4, 4) and adj.shape == (5, 6, 6)
+    for k in range(5):
+        np.testing.assert_allclose(inv[k], invert_transform(T[k]), atol=1e-12)
+        np.testing.assert_allclose(adj[k], adjoint(T[k]), atol=1e-12)
+    assert invert_transforms(np.zeros((0, 4, 4))).shape == (0, 4, 4)
+    with pytest.raises(ShapeError):
+        adjoints(T[0])  # one (4, 4) transform is not a stack
