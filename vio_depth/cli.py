@@ -91,7 +91,8 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
                         "E (default 0.03)")
     g.add_argument("--edge-guard", type=float, default=None, metavar="F",
                    help="do not fit points where the disparity varies by more than the fraction F within 3 px "
-                        "(points on depth edges; default: off; 0.1 with --matcher klt, whose corners sit on edges)")
+                        "(points on depth edges; default: off; 0.1 with --matcher klt, whose corners sit on edges; a "
+                        "klt run also pairs no frame below the motion thresholds: docs/benchmarks.md)")
     g.add_argument("--rescaler", default=None, help="rescaler preset: streaming (default), per_frame, paper")
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")

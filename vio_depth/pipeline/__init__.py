@@ -35,7 +35,7 @@ from .pipeline import Pipeline
 from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, parse_points_spec
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
-from .settings import POSE_PRESETS, PRESET_FAMILIES, PipelineSettings, PoseSettings
+from .settings import POSE_PRESETS, PRESET_FAMILIES, TRACKER_DEFAULTS, PipelineSettings, PoseSettings, with_tracker_defaults
 from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
@@ -47,6 +47,7 @@ __all__ = [
     "POINT_SPEC_FORMS",
     "POSE_PRESETS",
     "PRESET_FAMILIES",
+    "TRACKER_DEFAULTS",
     "FrameResult",
     "FrameStatus",
     "FrameStream",
@@ -56,6 +57,7 @@ __all__ = [
     "PairStatus",
     "Pipeline",
     "PipelineSettings",
+    "with_tracker_defaults",
     "PointSourceKind",
     "PointSourceSpec",
     "PointsOutcome",

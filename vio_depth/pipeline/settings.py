@@ -20,7 +20,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from matchers import MATCHER_PRESETS, LearnedMatcherSettings, MatcherSettings, SiftSettings
+from matchers import MATCHER_PRESETS, KltSettings, LearnedMatcherSettings, MatcherSettings, SiftSettings
 from triangulation import TRIANGULATION_PRESETS, ConsistencySettings, TriangulationSettings
 from vio_core.errors import SettingsError
 from vio_core.settings import Presets, override, to_plain
@@ -53,6 +53,38 @@ POSE_PRESETS: Presets = Presets("pose source", {
                     "(calibrated on EuRoC V1_01)",
     "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
 })
+
+
+#: What a tracking front end (``--matcher klt``) changes in the other stages, unless they are set
+#: explicitly: ``(stage, field, value)``. Its corners sit on depth edges, so the points where the
+#: disparity varies by more than 10 % within 3 px are not fitted; and its flow carries a
+#: sub-pixel bias (street frame 1: +0.06 px along the flow at 5-15 m, +0.18 px at 8-12 m,
+#: docs/benchmarks.md "Real time and trust, 2026-12-06") that a weak pair -- no keyframe beyond
+#: the motion thresholds, 0.4 m of baseline there -- turns into wrong depth (street frame 1:
+#: AbsRel 0.066 with 0.009 predicted; room frame 3: 0.046 with 0.019). Without weak pairs the
+#: leading frames get their depth from the offline backward pass (street, room, KITTI-tiny:
+#: every frame written, none wrong); online they wait for a full pair.
+TRACKER_DEFAULTS: tuple[tuple[str, str, Any], ...] = (
+    ("rescaler", "max_disparity_spread", 0.1),
+    ("pairing", "allow_weak_pairs", False),
+)
+
+
+def with_tracker_defaults(settings: "PipelineSettings", explicit: Mapping[str, Any] | None = None,
+                          stages: set[str] | None = None) -> "PipelineSettings":
+    """``settings`` with :data:`TRACKER_DEFAULTS` applied when its matcher is a tracker (KLT): to
+    the ``stages`` named (None: all), except the fields ``explicit`` sets (a nested dict of stage
+    tables, as a config file's: what the user set keeps its value); unchanged for any other matcher."""
+    if not isinstance(settings.matcher, KltSettings):
+        return settings
+    explicit = explicit or {}
+    changes: dict[str, dict[str, Any]] = {}
+    for stage, name, value in TRACKER_DEFAULTS:
+        table = explicit.get(stage)
+        if (stages is not None and stage not in stages) or (isinstance(table, Mapping) and name in table):
+            continue
+        changes.setdefault(stage, {})[name] = value
+    return override(settings, changes) if changes else settings
 
 
 @dataclass(frozen=True)
@@ -102,14 +134,15 @@ class PipelineSettings:
     def from_presets(cls, *, matcher: str | None = None, poses: str | None = None, pairing: str | None = None,
                      rescaler: str | None = None, triangulation: str | None = None,
                      points: str | None = None, **fields) -> "PipelineSettings":
-        """Settings from preset names (None = the family's default) and other fields."""
+        """Settings from preset names (None = the family's default) and other fields; a tracking
+        matcher (``klt``) brings :data:`TRACKER_DEFAULTS`."""
         s = cls(**fields)
         chosen = {"matcher": matcher, "poses": poses, "pairing": pairing, "rescaler": rescaler,
                   "triangulation": triangulation}
         s = dataclasses.replace(s, **{k: PRESET_FAMILIES[k][v] for k, v in chosen.items() if v is not None})
         if points is not None:
             s = dataclasses.replace(s, points=parse_points_spec(points, seed=s.points.seed))
-        return s
+        return with_tracker_defaults(s) if matcher is not None else s
 
     def preset_names(self) -> dict[str, str | None]:
         """For each stage family, the preset these settings derive from (by type and extractor)."""
@@ -152,7 +185,12 @@ class PipelineSettings:
                 changes[name] = _stage_from(name, value, getattr(s, name))
             else:
                 changes[name] = value
-        return override(s, changes)
+        out = override(s, changes)
+        # the tracker's defaults go to every stage when this file switches to it, else to the
+        # stages whose table chose a preset here (it replaced them); never over the file's own values
+        switched = isinstance(out.matcher, KltSettings) and not isinstance(s.matcher, KltSettings)
+        stages = {stage for stage, _, _ in TRACKER_DEFAULTS if switched or _chooses_preset(data.get(stage))}
+        return with_tracker_defaults(out, data, stages) if stages else out
 
 
 def _preset_key(settings) -> Any:
@@ -160,6 +198,11 @@ def _preset_key(settings) -> Any:
     if isinstance(settings, LearnedMatcherSettings):
         return (type(settings), settings.extractor)
     return type(settings)
+
+
+def _chooses_preset(value) -> bool:
+    """Whether a stage's table (or bare name) in a settings dict picks a preset."""
+    return isinstance(value, str) or (isinstance(value, Mapping) and "preset" in value)
 
 
 def _stage_from(family: str, value, current):

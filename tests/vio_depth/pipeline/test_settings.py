@@ -5,7 +5,7 @@ import pytest
 from matchers import LearnedMatcherSettings, SiftSettings
 from vio_core import SettingsError, UnknownNameError
 from vio_depth.pipeline import PointSourceKind, PointSourceSpec
-from vio_depth.pipeline import PRESET_FAMILIES, PipelineSettings
+from vio_depth.pipeline import PRESET_FAMILIES, TRACKER_DEFAULTS, PipelineSettings, with_tracker_defaults
 from vio_depth.poses import ImuPoseSettings
 
 
@@ -59,3 +59,29 @@ def test_to_dict_round_trips():
                                       points="lidar:32")
     assert PipelineSettings.from_dict(s.to_dict()) == s
     assert s.to_dict()["matcher"]["preset"] == "aliked+lightglue"
+
+
+def _tracker_fields(s):
+    return {(stage, name): getattr(getattr(s, stage), name) for stage, name, _ in TRACKER_DEFAULTS}
+
+
+def test_the_tracker_brings_its_defaults_unless_they_are_set():
+    """KLT: the edge guard on and no weak pairs (docs/benchmarks.md "Real time and trust,
+    2026-12-06"), by preset name or by a config file, with any pairing or rescaler preset; a value
+    the file sets wins; another matcher gets none of it."""
+    wanted = {(stage, name): value for stage, name, value in TRACKER_DEFAULTS}
+    assert wanted == {("rescaler", "max_disparity_spread"): 0.1, ("pairing", "allow_weak_pairs"): False}
+    P = PipelineSettings
+    klt = P.from_presets(matcher="klt", pairing="indoor", rescaler="paper")
+    assert _tracker_fields(klt) == wanted and klt.pairing.min_translation_m == 0.15 and klt.rescaler.temporal is None
+    assert _tracker_fields(P.from_dict({"matcher": {"preset": "klt"}, "pairing": "indoor"})) == wanted
+    # a file on top of a klt base: a pairing preset chosen there replaces the stage, the defaults come back
+    assert _tracker_fields(P.from_dict({"pairing": {"preset": "indoor"}}, base=P.from_presets(matcher="klt"))) == wanted
+    mine = P.from_dict({"matcher": "klt", "pairing": {"allow_weak_pairs": True}, "rescaler": {"max_disparity_spread": 0.2}})
+    assert mine.pairing.allow_weak_pairs is True and mine.rescaler.max_disparity_spread == 0.2
+    kept = P.from_dict({"pairing": {"preset": "kitti", "allow_weak_pairs": True}}, base=P.from_presets(matcher="klt"))
+    assert kept.pairing.allow_weak_pairs is True and kept.rescaler.max_disparity_spread == 0.1
+    for sift in (P.from_presets(matcher="sift"), P.from_dict({"matcher": "sift", "pairing": "indoor"}), P()):
+        assert sift.pairing.allow_weak_pairs is True and sift.rescaler.max_disparity_spread is None
+    assert with_tracker_defaults(P()) == P()
+    assert P.from_dict(klt.to_dict()) == klt  # the dump of a klt run loads back to the same settings

@@ -152,8 +152,9 @@ def test_edge_guard_drops_points_on_depth_edges_before_the_fit():
     from vio_depth.rescale import disparity_spread
 
     seq = open_sequence(ROOM)
-    base = PipelineSettings.from_presets(matcher="klt", pairing="indoor")
-    guarded = dataclasses.replace(base, rescaler=dataclasses.replace(base.rescaler, max_disparity_spread=0.1))
+    guarded = PipelineSettings.from_presets(matcher="klt", pairing="indoor")  # the tracker's default guard
+    assert guarded.rescaler.max_disparity_spread == 0.1
+    base = dataclasses.replace(guarded, rescaler=dataclasses.replace(guarded.rescaler, max_disparity_spread=None))
     disparity = create_disparity_source(DisparitySettings(), seq)
     found = {}
     for name, settings in (("off", base), ("on", guarded)):
