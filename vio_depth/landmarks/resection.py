@@ -51,6 +51,26 @@ def _exp(xi: np.ndarray) -> np.ndarray:
     return T
 
 
+def _inv2(S: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) inverses of symmetric positive-definite (N, 2, 2) matrices, in closed form."""
+    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    det = a * d - b * b
+    out = np.empty_like(S)
+    out[:, 0, 0] = d / det
+    out[:, 1, 1] = a / det
+    out[:, 0, 1] = out[:, 1, 0] = -b / det
+    return out
+
+
+def _normal_equations(J: np.ndarray, S_inv: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sum_n w_n J_n^T S_n^-1 J_n, sum_n w_n J_n^T S_n^-1 r_n)``: (6, 6) and (6,), from (N, 2, 6)
+    Jacobians, (N, 2, 2) inverse covariances, (N,) weights and (N, 2) residuals, as two matrix
+    products over all landmarks' rows."""
+    WJ = S_inv @ J * w[:, None, None]  # (N, 2, 6): w_n S_n^-1 J_n (S symmetric)
+    WJ = WJ.reshape(-1, 6)
+    return WJ.T @ J.reshape(-1, 6), WJ.T @ r.reshape(-1)
+
+
 def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, prior_covariance,
                 pixel_sigma_px: float = 1.0, huber_sigmas: float = 2.0, iterations: int = 5) -> PoseRefinement:
     """Refine a frame's pose against landmarks it observes (see the module docstring).
@@ -95,8 +115,10 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
         Jp[:, 1, 1] = f[1] / z
         Jp[:, 1, 2] = -f[1] * p_c[:, 1] / z**2
         JX = Jp @ R_cw
-        S = pixel_sigma_px**2 * np.eye(2) + JX @ C @ np.transpose(JX, (0, 2, 1))
-        return Jp @ pose_jacobian(p_c), np.linalg.inv(S)
+        S = JX @ C @ np.transpose(JX, (0, 2, 1))
+        S[:, 0, 0] += pixel_sigma_px**2
+        S[:, 1, 1] += pixel_sigma_px**2
+        return Jp @ pose_jacobian(p_c), _inv2(S)
 
     delta = np.zeros(6)
     T = T0
@@ -104,11 +126,12 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
         p_c, r, R_cw = residuals(T)
         front = p_c[:, 2] > 0
         J, S_inv = jacobians(np.where(front[:, None], p_c, 1.0), R_cw)
-        e = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", np.nan_to_num(r), S_inv, np.nan_to_num(r)), 0.0))
+        r0 = np.nan_to_num(r)
+        e = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", r0, S_inv, r0), 0.0))
         w = np.where(front & np.isfinite(e), np.where(e <= huber_sigmas, 1.0, huber_sigmas / np.maximum(e, 1e-12)), 0.0)
-        JtS = np.transpose(J, (0, 2, 1)) @ S_inv
-        H = np.einsum("n,nij,njk->ik", w, JtS, J) + info_prior
-        g = np.einsum("n,nij,nj->i", w, JtS, np.nan_to_num(r)) + info_prior @ delta
+        H, g = _normal_equations(J, S_inv, w, r0)
+        H = H + info_prior
+        g = g + info_prior @ delta
         step = -np.linalg.solve(H, g)
         delta = delta + step
         T = T0 @ _exp(delta)
@@ -120,7 +143,6 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
     e = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6)), 0))
     inlier = front & np.isfinite(e)
     w = np.where(inlier, np.where(e <= huber_sigmas, 1.0, huber_sigmas / np.maximum(e, 1e-12)), 0.0)
-    JtS = np.transpose(J, (0, 2, 1)) @ S_inv
-    H = np.einsum("n,nij,njk->ik", w, JtS, J) + info_prior
+    H = _normal_equations(J, S_inv, w, np.zeros((n, 2)))[0] + info_prior
     cov = np.linalg.inv(H)
     return PoseRefinement(T, 0.5 * (cov + cov.T), inlier, np.where(front, e, np.inf), np.linalg.norm(r, axis=1))
