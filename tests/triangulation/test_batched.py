@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from triangulation.batched import sum_by
+from triangulation.batched import inv2, quad2, sum_by
 
 
 def test_sum_by_equals_one_bincount_per_component():
@@ -17,3 +17,12 @@ def test_sum_by_equals_one_bincount_per_component():
         got = sum_by(index, values, n)
         assert got.dtype == np.float64 and got.shape == (n, *shape)
         assert np.array_equal(got.reshape(want.shape), want.astype(np.float64))
+
+
+def test_closed_form_2x2_inverse_and_quadratic_form():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(50, 2, 2))
+    S = A @ np.transpose(A, (0, 2, 1)) + 0.1 * np.eye(2)
+    np.testing.assert_allclose(inv2(S), np.linalg.inv(S), rtol=1e-10)
+    r = rng.normal(size=(50, 2))
+    np.testing.assert_allclose(quad2(r, S), np.einsum("ni,nij,nj->n", r, S, r), rtol=1e-12)

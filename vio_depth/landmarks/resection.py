@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from triangulation.batched import inv2
 from triangulation.multiview import pose_jacobian
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
@@ -49,17 +50,6 @@ def _exp(xi: np.ndarray) -> np.ndarray:
     T[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
     T[:3, 3] = xi[3:]
     return T
-
-
-def _inv2(S: np.ndarray) -> np.ndarray:
-    """(N, 2, 2) inverses of symmetric positive-definite (N, 2, 2) matrices, in closed form."""
-    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    det = a * d - b * b
-    out = np.empty_like(S)
-    out[:, 0, 0] = d / det
-    out[:, 1, 1] = a / det
-    out[:, 0, 1] = out[:, 1, 0] = -b / det
-    return out
 
 
 def _normal_equations(J: np.ndarray, S_inv: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +108,7 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
         S = JX @ C @ np.transpose(JX, (0, 2, 1))
         S[:, 0, 0] += pixel_sigma_px**2
         S[:, 1, 1] += pixel_sigma_px**2
-        return Jp @ pose_jacobian(p_c), _inv2(S)
+        return Jp @ pose_jacobian(p_c), inv2(S)
 
     delta = np.zeros(6)
     T = T0
