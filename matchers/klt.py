@@ -333,7 +333,7 @@ class KltTracker:
         thinned = len(uv) - len(keep)
         uv, ids, age = uv[keep], ids[keep], age[keep] + 1
         n_new = 0
-        if len(uv) < s.max_tracks and len(uv) < s.top_up_below * s.max_tracks:
+        if len(uv) < s.top_up_below * s.max_tracks:  # top_up_below <= 1
             corners = cv2.goodFeaturesToTrack(grey, s.max_tracks - len(uv), s.quality, s.min_distance_px,
                                               mask=free_mask(uv, s.min_distance_px, w, h), blockSize=s.block_size)
             if corners is not None:

@@ -104,10 +104,4 @@ def adjoint(T) -> np.ndarray:
     """(6, 6) adjoint of the rigid transform ``T: (4, 4)`` in (rotation, translation) order:
     ``T Exp(xi) = Exp(adjoint(T) xi) T``, so a right-perturbation covariance ``S`` of a pose
     ``T_a_b Exp(xi)`` is ``adjoint(T_a_b) S adjoint(T_a_b)^T`` as a left one in ``a``."""
-    T = check_transform("T", T)
-    R, t = T[:3, :3], T[:3, 3]
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[3:, :3] = skew(t) @ R
-    A[3:, 3:] = R
-    return A
+    return adjoints(check_transform("T", T)[None])[0]

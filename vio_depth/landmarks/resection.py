@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from triangulation.batched import inv2
+from triangulation.batched import inv2, quad2
 from triangulation.multiview import pose_jacobian
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
@@ -117,7 +117,7 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
         front = p_c[:, 2] > 0
         J, S_inv = jacobians(np.where(front[:, None], p_c, 1.0), R_cw)
         r0 = np.nan_to_num(r)
-        e = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", r0, S_inv, r0), 0.0))
+        e = np.sqrt(np.maximum(quad2(r0, S_inv), 0.0))
         w = np.where(front & np.isfinite(e), np.where(e <= huber_sigmas, 1.0, huber_sigmas / np.maximum(e, 1e-12)), 0.0)
         H, g = _normal_equations(J, S_inv, w, r0)
         H = H + info_prior
@@ -130,7 +130,7 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
     p_c, r, R_cw = residuals(T)
     front = p_c[:, 2] > 0
     J, S_inv = jacobians(np.where(front[:, None], p_c, 1.0), R_cw)
-    e = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", np.nan_to_num(r, nan=1e6), S_inv, np.nan_to_num(r, nan=1e6)), 0))
+    e = np.sqrt(np.maximum(quad2(np.nan_to_num(r, nan=1e6), S_inv), 0))
     inlier = front & np.isfinite(e)
     w = np.where(inlier, np.where(e <= huber_sigmas, 1.0, huber_sigmas / np.maximum(e, 1e-12)), 0.0)
     H = _normal_equations(J, S_inv, w, np.zeros((n, 2)))[0] + info_prior

@@ -114,9 +114,7 @@ class FrameBridges:
         """:meth:`pose` of every frame ``(id, t)`` between keyframes ``a`` and ``b`` at once (the
         IMU prediction per frame, the bridge and the covariance as stacks): ``{id: (T_w_f,
         covariance)}`` of the frames that could be posed."""
-        pairs: dict = {}
-        self._pair(w, est, times, a, b, pairs)
-        st, shared = pairs[(a, b)]
+        st, shared = self._pair(w, est, times, a, b)
         if shared is None or not frames:
             return {}
         dR, dp, T_w_b, C_ab = shared
@@ -145,12 +143,10 @@ class FrameBridges:
         C = 0.5 * (C + np.swapaxes(C, 1, 2))
         return {f: (T_w_f[k], C[k]) for k, f in enumerate(ids)}
 
-    def _pair(self, w: LandmarkWindow, est, times: Mapping[int, float], a: int, b: int, pairs: dict) -> None:
-        """Cache in ``pairs[(a, b)]`` what the frames between keyframes ``a`` and ``b`` share:
-        ``(a's state, (mismatch rotation vector, mismatch translation, T_w_b, covariance of a and
-        b relative to each other) or None)``."""
-        if (a, b) in pairs:
-            return
+    def _pair(self, w: LandmarkWindow, est, times: Mapping[int, float], a: int, b: int):
+        """What the frames between keyframes ``a`` and ``b`` share: ``(a's state, (mismatch
+        rotation vector, mismatch translation, T_w_b, covariance of a and b relative to each
+        other) or None)``."""
         st = self.factors.state_of(est, a, times[a])
         end_b, _, _ = self._predict(st, times[b])
         shared = None
@@ -161,7 +157,7 @@ class FrameBridges:
             # the mismatch at b (rotation vector, translation), the same for all the pair's frames
             dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
             shared = (dR, T_b[:3, 3] - end_b.T_w_i[:3, 3], T_w_b, C_ab)
-        pairs[(a, b)] = (st, shared)
+        return st, shared
 
     def _predict(self, state, t: float):
         """The IMU prediction from ``state`` to ``t`` (without its covariance: ``(end, None,
