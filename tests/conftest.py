@@ -152,6 +152,19 @@ def native_prefix():
     return copy_native_prefix
 
 
+#: ``--matcher sift`` for a run over a few street frames: they are 0.4 m apart, so only SIFT's
+#: weak pairs (below the pairing's 1.5 m) give them depth; klt, the default matcher with the
+#: sequence's poses, pairs none (``TRACKER_DEFAULTS``) and such a run ends in exit 3. Tests of
+#: folders, files and statuses on short clips name sift to keep testing what they test.
+SHORT_CLIP = ("--matcher", "sift")
+
+
+@pytest.fixture
+def short_clip() -> tuple[str, ...]:
+    """:data:`SHORT_CLIP`: the flags a CLI run over a few street frames adds to get depth."""
+    return SHORT_CLIP
+
+
 @pytest.fixture
 def mini_street(tmp_path):
     """Factory: ``mini_street(n=10, name="seq")`` copies the first n frames of the street sample."""

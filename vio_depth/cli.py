@@ -52,7 +52,8 @@ from .run import (
     Terminated,
     dump_config,
     format_table,
-    load_config,
+    read_config,
+    resolve_config,
     raise_terminated,
     run_sequence,
     staging_path,
@@ -69,7 +70,8 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     """The flags that shape the settings (shared by ``run`` and ``config``); all default to None."""
     p.add_argument("--config", default=None, metavar="FILE", help="TOML settings file (see `vio-depth config --dump`)")
     g = p.add_argument_group("pipeline")
-    g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: sift)")
+    g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: klt with --poses gt, sift with imu/vio "
+                        "poses or --guided-matching)")
     g.add_argument("--guided-matching", action="store_true", default=None,
                    help="match each keypoint only inside its epipolar band, widened by the pose's stated "
                         "uncertainty (SIFT; [matcher.guided] in a config file; default off)")
@@ -201,22 +203,17 @@ _PRESET_FLAGS = ("matcher", "poses", "pairing", "rescaler")
 def settings_from_args(args) -> tuple[PipelineSettings, RunSettings]:
     """Defaults, then the preset flags (``--matcher``, ``--poses``, ``--pairing``, ``--rescaler``),
     then ``--config`` (its stage tables refine those presets; a file naming another preset than
-    the flag is refused), then the other flags given on the command line.
+    the flag is refused), then the other flags given on the command line. When neither a flag nor
+    the file names a matcher, it follows the pose source (:func:`vio_depth.run.resolve_config`).
 
     Raises:
         SettingsError / UnknownNameError / InputError: an invalid or inapplicable value.
     """
-    # a preset flag picks the stage before the file is read, so that the file's table for that
-    # stage (e.g. [poses.backend] under --poses vio) refines it instead of being replaced by it
     chosen = {family: getattr(args, family) for family in _PRESET_FLAGS if getattr(args, family) is not None}
-    pipeline, run = PipelineSettings.from_presets(**chosen), RunSettings()
-    if args.config:
-        pipeline, run = load_config(args.config, pipeline)
-        names = pipeline.preset_names()
-        for family, name in chosen.items():
-            if PipelineSettings.from_presets(**{family: name}).preset_names()[family] != names[family]:
-                raise SettingsError(f"--{family} {name} and the config file's [{family}] preset "
-                                    f"{names[family]!r} disagree: drop one of them")
+    data = read_config(args.config) if args.config else None
+    # guided matching is a SIFT option: it makes sift the matcher when nothing names one
+    pipeline, run = resolve_config(chosen, data, source=args.config,
+                                   default_matcher="sift" if args.guided_matching else None)
     s = pipeline
     if args.guided_matching:
         if not isinstance(s.matcher, SiftSettings):

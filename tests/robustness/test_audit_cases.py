@@ -88,13 +88,13 @@ def test_case02_a_user_folder_with_a_foreign_frames_jsonl_is_never_replaced(mini
     assert digest(user) == before
 
 
-def test_case02b_a_marked_run_is_replaced_and_the_marker_travels_with_it(mini_street, tmp_path, cli):
+def test_case02b_a_marked_run_is_replaced_and_the_marker_travels_with_it(short_clip, mini_street, tmp_path, cli):
     seq = mini_street(3)
     out = tmp_path / "out"
-    assert cli("run", seq, "--out", out)[0] == 0
+    assert cli("run", seq, "--out", out, *short_clip)[0] == 0
     first = json.loads((out / "vio-depth-run.json").read_text())
     assert first["vio_depth"] == "run" and len(first["id"]) == 32
-    assert cli("run", seq, "--out", out, "--overwrite", "--seed", 4)[0] == 0
+    assert cli("run", seq, "--out", out, "--overwrite", "--seed", 4, *short_clip)[0] == 0
     second = json.loads((out / "vio-depth-run.json").read_text())
     assert second["id"] != first["id"] and read_frames_jsonl(out / "frames.jsonl")[0]["settings"]["points"]["seed"] == 4
 
@@ -170,12 +170,12 @@ def test_case08_a_config_nested_50000_deep_is_one_line(mini_street, tmp_path, cl
 
 
 @pytest.mark.parametrize("how", ["all", "one"])
-def test_case09_report_on_frame_records_of_the_wrong_type(mini_street, tmp_path, cli, one_line, how):
+def test_case09_report_on_frame_records_of_the_wrong_type(short_clip, mini_street, tmp_path, cli, one_line, how):
     """`vio-depth report OUT` on a frames.jsonl with "frame": "zero": ValueError traceback."""
     pytest.importorskip("matplotlib")
     seq = mini_street(3)
     out = tmp_path / "o"
-    assert cli("run", seq, "--out", out)[0] == 0
+    assert cli("run", seq, "--out", out, *short_clip)[0] == 0
     lines = (out / "frames.jsonl").read_text().splitlines()
     recs = [json.loads(ln) for ln in lines]
     for r in recs[1:] if how == "all" else recs[2:3]:
@@ -202,14 +202,14 @@ def test_case10_a_dangling_symlink_out_is_refused_and_left_alone(mini_street, tm
     assert not [p for p in tmp_path.iterdir() if "vio-depth" in p.name]
 
 
-def test_case10b_a_symlink_out_to_an_empty_folder_is_followed_consistently(mini_street, tmp_path, cli):
+def test_case10b_a_symlink_out_to_an_empty_folder_is_followed_consistently(short_clip, mini_street, tmp_path, cli):
     seq = mini_street(3)
     target = tmp_path / "runs" / "today"
     target.mkdir(parents=True)
     link = tmp_path / "latest"
     link.symlink_to(target)
     for flag in ([], ["--overwrite"]):
-        rc, _, err = cli("run", seq, "--out", link, *flag)
+        rc, _, err = cli("run", seq, "--out", link, *flag, *short_clip)
         assert rc == 0, err
         assert link.is_symlink() and os.readlink(link) == str(target)
         assert (target / "frames.jsonl").is_file() and (target / "vio-depth-run.json").is_file()
@@ -226,14 +226,14 @@ def _damage(data: bytes, rng, n: int = 96) -> bytes:
     return bytes(b)
 
 
-def test_case11_a_jpeg_with_restart_markers_and_random_bytes_is_status_corrupt_image(mini_street, tmp_path, cli):
+def test_case11_a_jpeg_with_restart_markers_and_random_bytes_is_status_corrupt_image(short_clip, mini_street, tmp_path, cli):
     """96 random bytes in the compressed data: decoded with a damaged band and used (`ok`)."""
     seq = mini_street(5)
     bad = seq / "images" / "000003.jpg"
     image = cv2.imread(str(bad))
     clean = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95, cv2.IMWRITE_JPEG_RST_INTERVAL, 1])[1].tobytes()
     bad.write_bytes(_damage(clean, np.random.default_rng(23)))
-    rc, _, err = cli("run", seq, "--out", tmp_path / "o")
+    rc, _, err = cli("run", seq, "--out", tmp_path / "o", *short_clip)
     assert rc == 0 and "Corrupt JPEG" not in err, err
     _, frames = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")
     assert frames[3]["status"] == "corrupt_image" and "000003.jpg" in frames[3]["reason"]
@@ -282,7 +282,7 @@ def test_case14_an_infinite_ransac_threshold_is_refused(mini_street, tmp_path, c
 
 
 # --------------------------------------------------------------------------- smaller
-def test_case15_a_missing_disparity_file_is_named(mini_street, tmp_path, cli):
+def test_case15_a_missing_disparity_file_is_named(short_clip, mini_street, tmp_path, cli):
     """A missing disparity file after frame 0 gave `no_disparity` without naming the file."""
     seq = mini_street(4)
     source = create_disparity_source(DisparitySettings(), open_sequence(seq))
@@ -291,7 +291,7 @@ def test_case15_a_missing_disparity_file_is_named(mini_street, tmp_path, cli):
     for f in open_sequence(seq):
         if f.index != 2:
             np.save(disp / f"{f.stem}.npy", source(f).astype(np.float32))
-    rc, _, err = cli("run", seq, "--out", tmp_path / "o", "--disparity-dir", disp)
+    rc, _, err = cli("run", seq, "--out", tmp_path / "o", "--disparity-dir", disp, *short_clip)
     assert rc == 0, err
     _, frames = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")
     assert frames[2]["status"] == "no_disparity" and str(disp / "000002.npy") in frames[2]["reason"]

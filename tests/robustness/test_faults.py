@@ -130,7 +130,7 @@ def test_sigterm_is_handled_like_ctrl_c(mini_street, tmp_path, cli, one_line):
 
 
 # --------------------------------------------------------------------------- folders vio-depth did not write
-def test_eval_refuses_a_user_folder_a_run_folder_and_a_busy_one(mini_street, tmp_path, cli, one_line, digest):
+def test_eval_refuses_a_user_folder_a_run_folder_and_a_busy_one(short_clip, mini_street, tmp_path, cli, one_line, digest):
     import fcntl
 
     seq = mini_street(3)
@@ -140,7 +140,7 @@ def test_eval_refuses_a_user_folder_a_run_folder_and_a_busy_one(mini_street, tmp
     rc, _, err = cli("eval", seq, "--out", user)
     one_line(rc, err, "holds no vio-depth evaluation", "vio-depth-eval.json")
     run = tmp_path / "run"
-    assert cli("run", seq, "--out", run)[0] == 0
+    assert cli("run", seq, "--out", run, *short_clip)[0] == 0
     before = digest(run)
     rc, _, err = cli("eval", seq, "--out", run)
     one_line(rc, err, "holds a vio-depth run folder")
@@ -160,12 +160,12 @@ def test_eval_refuses_a_user_folder_a_run_folder_and_a_busy_one(mini_street, tmp
     assert (user / "results.csv").read_text() == "mine\n"
 
 
-def test_report_never_writes_into_a_folder_it_did_not_make(mini_street, tmp_path, cli, one_line):
+def test_report_never_writes_into_a_folder_it_did_not_make(short_clip, mini_street, tmp_path, cli, one_line):
     """`report OUT --to DIR` replaced DIR/plots and DIR/thumbs."""
     pytest.importorskip("matplotlib")
     seq = mini_street(3)
     out = tmp_path / "o"
-    assert cli("run", seq, "--out", out)[0] == 0
+    assert cli("run", seq, "--out", out, *short_clip)[0] == 0
     docs = tmp_path / "Documents"
     (docs / "plots").mkdir(parents=True)
     (docs / "plots" / "holiday.png").write_bytes(b"png")

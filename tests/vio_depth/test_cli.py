@@ -170,7 +170,7 @@ def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_
     rows = {}
     for flag in ([], ["--no-backfill"]):
         out = tmp_path / ("plain" if flag else "backfill")
-        rc, _, err = _run(["run", STREET, "--out", out, "--max-frames", 6, *flag], capsys)
+        rc, _, err = _run(["run", STREET, "--out", out, "--max-frames", 6, "--matcher", "sift", *flag], capsys)
         assert rc == 0, err
         rows[bool(flag)] = read_frames_jsonl(out / "frames.jsonl")[1]
     streaming, offline = rows[True][0], rows[False][0]
@@ -188,10 +188,11 @@ def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_
 
 
 def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
-    assert main(["config", "--dump"]) == 0
-    assert "[matcher.guided]\nenabled = false" in capsys.readouterr().out  # off by default
-    assert main(["config", "--dump", "--guided-matching"]) == 0
-    assert "[matcher.guided]\nenabled = true" in capsys.readouterr().out
+    assert main(["config", "--dump", "--poses", "vio"]) == 0
+    assert "[matcher.guided]\nenabled = false" in capsys.readouterr().out  # sift's, off by default
+    assert main(["config", "--dump", "--guided-matching"]) == 0  # sift when nothing names a matcher
+    out = capsys.readouterr().out
+    assert "[matcher.guided]\nenabled = true" in out and 'preset = "sift"' in out
     assert main(["config", "--dump", "--guided-matching", "--matcher", "disk+lightglue"]) == 1
     assert "--guided-matching needs a nearest-neighbour matcher (sift)" in capsys.readouterr().err
 

@@ -86,13 +86,13 @@ def test_unreadable_image_is_one_line(mini_street, tmp_path, capsys, monkeypatch
 
 
 # --------------------------------------------------------------------------- case 5: odd paths
-def test_sequence_path_with_bytes_that_are_not_utf8(mini_street, tmp_path, capsys):
+def test_sequence_path_with_bytes_that_are_not_utf8(short_clip, mini_street, tmp_path, capsys):
     """A sequence folder whose name is not UTF-8 crashed OpenCV's path handling (exit 139)."""
     seq = mini_street(4)
     odd = Path(os.fsdecode(bytes(tmp_path) + b"/seq\xff\xfe"))
     seq.rename(odd)
     out = Path(os.fsdecode(bytes(tmp_path) + b"/out\xff"))
-    rc, table, err = _run(["run", odd, "--out", out], capsys)
+    rc, table, err = _run(["run", odd, "--out", out, *short_clip], capsys)
     assert rc == 0, err
     assert "metric depth for 4 of 4" in table
     header, frames = read_frames_jsonl(out / "frames.jsonl")
@@ -109,7 +109,7 @@ def test_frames_txt_pointing_outside_the_sequence_is_refused(mini_street, tmp_pa
 
 
 # --------------------------------------------------------------------------- case 6: wrong results
-def test_corrupt_jpeg_mid_run_is_a_frame_status_naming_the_file(mini_street, tmp_path, capsys):
+def test_corrupt_jpeg_mid_run_is_a_frame_status_naming_the_file(short_clip, mini_street, tmp_path, capsys):
     """Issue 23: damaged compressed data are the frame's status ``corrupt_image`` (the run goes
     on; it was an error ending the run, issue 12); libjpeg's own line never reaches stderr."""
     seq = mini_street(6)
@@ -117,7 +117,7 @@ def test_corrupt_jpeg_mid_run_is_a_frame_status_naming_the_file(mini_street, tmp
     b = bytearray(bad.read_bytes())
     b[len(b) // 2: len(b) // 2 + 400] = b"\x55" * 400
     bad.write_bytes(bytes(b))
-    rc, _, err = _run(["run", seq, "--out", tmp_path / "o"], capsys)
+    rc, _, err = _run(["run", seq, "--out", tmp_path / "o", *short_clip], capsys)
     assert rc == 0 and "Corrupt JPEG data" not in err, err
     _, frames = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")
     assert frames[3]["status"] == "corrupt_image" and frames[3]["alpha"] is None
@@ -162,14 +162,14 @@ def _disparity_dir(seq: Path, tmp_path: Path, edit) -> Path:
 
 @pytest.mark.parametrize("kind, status", [("negated", "invalid_disparity"), ("zero", "invalid_disparity"),
                                           ("nan", "invalid_disparity")])
-def test_unusable_disparity_maps_end_in_exit_3_naming_why(mini_street, tmp_path, capsys, kind, status):
+def test_unusable_disparity_maps_end_in_exit_3_naming_why(short_clip, mini_street, tmp_path, capsys, kind, status):
     """Negative (negated) maps gave delta1 0.099 with exit 0; all-zero and all-NaN maps exited 0
     with no depth and nothing on stderr."""
     seq = mini_street(6)
     edit = {"negated": lambda d: -d, "zero": np.zeros_like, "nan": lambda d: np.full_like(d, np.nan)}[kind]
     disp = _disparity_dir(seq, tmp_path, edit)
     out = tmp_path / "o"
-    rc, table, err = _run(["run", seq, "--out", out, "--disparity-dir", disp], capsys)
+    rc, table, err = _run(["run", seq, "--out", out, "--disparity-dir", disp, *short_clip], capsys)
     line = _one_line(rc, err, "no metric depth for any of 6", f"dominant status {status}", code=EXIT_NOTHING_CAME_OUT)
     assert line.startswith("vio-depth: ")
     _, frames = read_frames_jsonl(out / "frames.jsonl")  # the complete, honest records are written
@@ -238,12 +238,18 @@ def test_a_first_pair_on_few_points_is_refused_not_written_wrong(mini_street, tm
     """The street sample's first two frames (0.4 m apart, 21 inlier points) were written with
     5.7 % AbsRel while predicting 2.7 %: the fit trusted the scatter of 21 residuals as if it
     were exact. With its upper confidence bound the error predicted exceeds the bound, the
-    frames are refused, and the run says it wrote too little (exit 3)."""
+    frames are refused, and the run says it wrote too little (exit 3). That is sift's weak pair;
+    klt, the default with these poses, makes no pair below the motion thresholds and says so."""
     seq = mini_street(2)
-    rc, _, err = _run(["run", seq, "--out", tmp_path / "o"], capsys)
+    rc, _, err = _run(["run", seq, "--out", tmp_path / "o", "--matcher", "sift"], capsys)
     rows = read_frames_jsonl(tmp_path / "o" / "frames.jsonl")[1]
     assert rc == EXIT_NOTHING_CAME_OUT and "no metric depth" in err
     assert rows[1]["status"] == "uncertain_fit" and rows[1]["predicted_error"] > 0.03
+    rc, _, err = _run(["run", seq, "--out", tmp_path / "klt"], capsys)
+    header, rows = read_frames_jsonl(tmp_path / "klt" / "frames.jsonl")
+    assert rc == EXIT_NOTHING_CAME_OUT and header["settings"]["matcher"]["preset"] == "klt"
+    assert rows[1]["status"] == "no_pair" and "pairs below them are off" in rows[1]["reason"]
+    assert "pairs below them are off" in err  # the verdict quotes the latest frame's reason, not frame 0's
 
 
 def test_frames_that_share_an_image_name_are_refused(tmp_path):

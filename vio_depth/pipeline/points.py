@@ -154,9 +154,10 @@ class TwoViewPoints:
                 f"{kind}no keyframe predicts points precise enough (best: keyframe {best[0].frame.index}, {what}, "
                 f"predicted depth error {best[3]:.0%} at {self._depth_hint:.3g} m > max_pair_error "
                 f"{pairing.max_pair_error:.0%})"))
+        weak = "" if pairing.allow_weak_pairs else "; pairs below them are off (pairing.allow_weak_pairs)"
         return None, False, PointsOutcome(FrameStatus.NO_PAIR, (
             f"no keyframe beyond {pairing.min_rotation_deg} deg / {pairing.min_translation_m} m "
-            f"(best: {m.rotation_deg:.1f} deg, {m.translation_m:.2f} m)"))
+            f"(best: {m.rotation_deg:.1f} deg, {m.translation_m:.2f} m){weak}"))
 
     def _pair_and_triangulate(self, frame: Frame, features: Features) -> PointsOutcome:
         if len(self.buffer) == 0:

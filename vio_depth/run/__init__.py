@@ -25,7 +25,8 @@ pose_calibration   ``--calibrate-poses``: the pre-pass, :class:`PoseCalibratedSe
 =================  ============================================================================
 """
 
-from .config import RunSettings, config_from_dict, config_to_dict, dump_config, load_config
+from .config import (RunSettings, config_from_dict, config_to_dict, dump_config, load_config, read_config,
+                     resolve_config)
 from .folder import OutputFolder, OutputFolderError, OutputMode, check_out_path, staging_path
 from .outputs import RunOutputs
 from .interrupt import Terminated, deferred_interrupts, raise_if_interrupted, raise_terminated
@@ -90,6 +91,8 @@ __all__ = [
     "load_config",
     "raise_if_interrupted",
     "raise_terminated",
+    "read_config",
+    "resolve_config",
     "read_frames_jsonl",
     "run_header",
     "run_sequence",

@@ -27,7 +27,7 @@ from vio_core.limits import MAX_CONFIG_BYTES, read_limited, too_large
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
-from ..pipeline import PipelineSettings
+from ..pipeline import PipelineSettings, chooses_preset, default_matcher_preset
 from ..poses import PoseCalibrationSettings
 from .verdict import MIN_DEPTH_FRACTION
 
@@ -120,14 +120,13 @@ def dump_config(pipeline: PipelineSettings, run: RunSettings) -> str:
     return toml_dumps(config_to_dict(pipeline, run))
 
 
-def load_config(path, pipeline: PipelineSettings | None = None,
-                run: RunSettings | None = None) -> tuple[PipelineSettings, RunSettings]:
-    """Read a TOML config file and apply it on ``pipeline`` / ``run``.
+def read_config(path) -> dict[str, Any]:
+    """The parsed tables of a TOML config file.
 
     Raises:
         InputError: the file is missing, unreadable or larger than
             :data:`vio_core.limits.MAX_CONFIG_BYTES` (checked before reading it).
-        SettingsError: invalid TOML, an unknown table or key, or an invalid value (named).
+        SettingsError: invalid TOML (the file is named).
     """
     path = Path(path)
     try:
@@ -141,8 +140,72 @@ def load_config(path, pipeline: PipelineSettings | None = None,
         raise InputError(f"{path}: is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read config file ({exc})") from None
-    data = toml_loads(text, str(path))  # its errors name the file
+    return toml_loads(text, str(path))  # its errors name the file
+
+
+def load_config(path, pipeline: PipelineSettings | None = None,
+                run: RunSettings | None = None) -> tuple[PipelineSettings, RunSettings]:
+    """Read a TOML config file and apply it on ``pipeline`` / ``run`` (default: the library's
+    defaults, whose matcher is sift; :func:`resolve_config` is what the command line does, with
+    the matcher following the pose source).
+
+    Raises:
+        InputError: the file is missing, unreadable or too large (:func:`read_config`).
+        SettingsError: invalid TOML, an unknown table or key, or an invalid value (named).
+    """
+    return _apply(read_config(path), pipeline, run, source=str(path))
+
+
+def resolve_config(presets: Mapping[str, str], data: Mapping[str, Any] | None = None, *,
+                   source: str | None = None,
+                   default_matcher: str | None = None) -> tuple[PipelineSettings, RunSettings]:
+    """The settings of a run from stage preset names (the command line's ``--matcher``, ``--poses``,
+    ``--pairing``, ``--rescaler``) and a parsed config file ``data`` that refines them.
+
+    A preset named in ``presets`` is chosen before the file is applied, so that the file's table
+    for that stage (e.g. ``[poses.backend]`` under ``--poses vio``) refines it; a file naming
+    another preset for the same stage is refused. When neither names a matcher preset, the
+    matcher is ``default_matcher`` or, when that is None,
+    :func:`~vio_depth.pipeline.default_matcher_preset` of the pose source the flags and the
+    file choose (``klt`` with the sequence's poses, ``sift`` otherwise); a ``[matcher]`` table
+    without ``preset`` refines that matcher.
+
+    Args:
+        source: the file's name, prefixed to its errors.
+
+    Raises:
+        SettingsError: an unknown preset, table or key, an invalid value, or disagreeing presets.
+    """
+    data = dict(data or {})
+    chosen = dict(presets)
+    implied = None
+    if "matcher" not in chosen and not chooses_preset(data.get("matcher")):
+        implied = default_matcher
+        if implied is None:
+            others = {k: v for k, v in data.items() if k != "matcher"}
+            implied = default_matcher_preset(_apply(others, PipelineSettings.from_presets(**chosen),
+                                                    source=source)[0].poses)
+    base = PipelineSettings.from_presets(**chosen, **({} if implied is None else {"matcher": implied}))
+    try:
+        pipeline, run = config_from_dict(data, base)
+    except SettingsError as exc:
+        hint = ""
+        if implied is not None and str(exc).startswith("unknown setting matcher."):
+            hint = (f" (a [matcher] table without a preset refines the default matcher, {implied} with these "
+                    f"poses; add preset = \"sift\" or another to refine that one)")
+        raise SettingsError(f"{source}: {exc}{hint}" if source else f"{exc}{hint}") from None
+    names = pipeline.preset_names()
+    for family, name in chosen.items():
+        if PipelineSettings.from_presets(**{family: name}).preset_names()[family] != names[family]:
+            raise SettingsError(f"--{family} {name} and the config file's [{family}] preset "
+                                f"{names[family]!r} disagree: drop one of them")
+    return pipeline, run
+
+
+def _apply(data: Mapping[str, Any], pipeline: PipelineSettings | None, run: RunSettings | None = None, *,
+           source: str | None = None) -> tuple[PipelineSettings, RunSettings]:
+    """:func:`config_from_dict` with the file's name prefixed to its errors."""
     try:
         return config_from_dict(data, pipeline, run)
     except SettingsError as exc:
-        raise SettingsError(f"{path}: {exc}") from None
+        raise SettingsError(f"{source}: {exc}" if source else str(exc)) from None

@@ -82,7 +82,8 @@ def judge_run(summary, records: list[dict], min_fraction: float = MIN_DEPTH_FRAC
             what = "no metric depth for any" if k == 0 else f"metric depth for only {k}"
             message = (f"{what} of {n} processed frame(s) (less than {min_fraction:.0%}); "
                        f"dominant status {dominant} ({count} frame(s))")
-            example = next((r.get("reason", "") for r in without if r.get("status") == dominant), "")
+            # the latest such frame's reason: the first frame's "no keyframe yet" says least
+            example = next((r.get("reason", "") for r in reversed(without) if r.get("status") == dominant), "")
             if example:
                 message += f": {_one_line(example)}"
     return RunVerdict(ok, k, n, float(min_fraction), dominant, message)

@@ -53,7 +53,7 @@ def test_report_has_its_sections_and_links_resolve_after_moving(run_dir, tmp_pat
                 "plots/point_accuracy.png"):
         assert f'src="{img}"' in html
     installed = version("vio-depth")
-    assert "--save-preview" in html and f"<td>{installed}</td>" in html and '"preset": "sift"' in html
+    assert "--save-preview" in html and f"<td>{installed}</td>" in html and '"preset": "klt"' in html  # the default with gt poses
     assert "SIMULATED" in html and "Omitted" not in html
     assert html.count("_image.jpg") == 3 and html.count("thumbs/0") == 9 and html.count("_preview.png") == 3
     for page in (run_dir / "report" / "index.html", run_dir / "report" / "report.md"):
