@@ -7,10 +7,11 @@ for a bad frame (only for bad *input*, e.g. an unreadable image).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from dataclasses import replace
-from typing import Callable
+from typing import Callable, ContextManager
 
 from matchers import Features, FrameTracker, Matcher
 from vio_core.errors import CorruptImageError
@@ -89,30 +90,33 @@ class Pipeline:
         """Process the next frame of the stream and return its result (with ``depth``)."""
         return self.process_prepared(self.prepare(frame))
 
-    def prepare(self, frame: Frame, features: Features | None = None) -> PreparedFrame:
+    def prepare(self, frame: Frame, features: Features | None = None,
+                in_order: ContextManager | None = None) -> PreparedFrame:
         """The frame's stateless stages: image decoding, features, disparity.
 
         They read nothing of the pipeline's state (keyframes, filter), so frames may be
         prepared ahead of :meth:`process_prepared`, in other threads (several at once when
-        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread;
-        a tracking matcher, KLT, follows the previously prepared frame: frames in order, one
-        thread). ``features``: this
-        frame's features extracted earlier by the same matcher (the image is then not read
-        here).
+        the matcher's ``concurrent_extract`` is true: SIFT keeps one detector per thread).
+        A tracking matcher (KLT, :attr:`tracked`) follows the previously prepared frame, so
+        its frames come in order: one thread, or several that each enter ``in_order`` (their
+        turn, :class:`vio_depth.run.overlap.Prefetcher` with ``ordered``) for the image and
+        the tracking, while the disparity runs concurrently. ``features``: this frame's
+        features extracted earlier by the same matcher (the image is then not read here).
         """
         timings: dict[str, float] = {}
         clock = time.perf_counter
         matcher = self.matcher
         try:
             if matcher is not None and features is None:
-                t = clock()
-                image = frame.image()  # read once: a model disparity source gets the same pixels
-                frame = replace(frame, load_image=lambda: image)
-                timings["image"] = clock() - t
-                t = clock()
-                # once per frame, kept if keyframe; a tracker follows the previous frame
-                features = matcher.extract(image) if self.tracked is None else self.tracked(frame, image)
-                timings["features"] = clock() - t
+                with in_order if in_order is not None else contextlib.nullcontext():
+                    t = clock()
+                    image = frame.image()  # read once: a model disparity source gets the same pixels
+                    frame = replace(frame, load_image=lambda: image)
+                    timings["image"] = clock() - t
+                    t = clock()
+                    # once per frame, kept if keyframe; a tracker follows the previous frame
+                    features = matcher.extract(image) if self.tracked is None else self.tracked(frame, image)
+                    timings["features"] = clock() - t
             t = clock()
             disparity = self.disparity_source(frame)
             timings["disparity"] = clock() - t

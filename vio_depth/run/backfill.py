@@ -50,8 +50,9 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
     features = {} if features is None else features
-    with Prefetcher(lambda i: prepare_frame(sequence, backward, i, features.get(i)), range(last, -1, -1),
-                    workers + 1, threaded=overlap, workers=workers) as frames:
+    with Prefetcher(lambda i, turn=None: prepare_frame(sequence, backward, i, features.get(i), turn),
+                    range(last, -1, -1), workers + 1, threaded=overlap, workers=workers,
+                    ordered=backward.tracked is not None) as frames:
         for i in range(last, -1, -1):
             raise_if_interrupted()
             prepared = frames.get()

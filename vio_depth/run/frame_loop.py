@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import ContextManager
 
 from tqdm import tqdm
 
@@ -25,13 +26,15 @@ from .interrupt import raise_if_interrupted
 from .overlap import OrderedWriter, Prefetcher, TorchThreads
 
 
-def prepare_frame(sequence: Sequence, pipeline: Pipeline, i: int, features: Features | None = None) -> PreparedFrame:
+def prepare_frame(sequence: Sequence, pipeline: Pipeline, i: int, features: Features | None = None,
+                  in_order: ContextManager | None = None) -> PreparedFrame:
     """Frame ``i`` through the pipeline's stateless stages (timed: ``load`` and the stages);
-    ``features``: the frame's features when already extracted."""
+    ``features``: the frame's features when already extracted; ``in_order``: the frame's turn
+    for a tracker (:meth:`vio_depth.pipeline.Pipeline.prepare`)."""
     t = time.perf_counter()
     frame = sequence[i]
     load = time.perf_counter() - t
-    prepared = pipeline.prepare(frame, features)
+    prepared = pipeline.prepare(frame, features, in_order)
     prepared.timings["load"] = load
     return prepared
 
@@ -64,8 +67,9 @@ def forward_pass(sequence: Sequence, pipeline: Pipeline, n: int, frames_out: Fra
     with_depth = 0
     features: dict[int, Features] = {}
     first_ok = None
-    with Prefetcher(lambda i: prepare_frame(sequence, pipeline, i), range(n), workers + 1, threaded=overlap,
-                    workers=workers) as frames:
+    # a tracker's frames take turns for their tracking (their disparity runs concurrently)
+    with Prefetcher(lambda i, turn=None: prepare_frame(sequence, pipeline, i, in_order=turn), range(n), workers + 1,
+                    threaded=overlap, workers=workers, ordered=pipeline.tracked is not None) as frames:
         for i in bar:
             raise_if_interrupted()  # a signal during the last frame: here, with no lock held
             prepared = frames.get()

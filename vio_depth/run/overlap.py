@@ -4,7 +4,9 @@ A run has three lanes (docs/benchmarks.md, "Throughput"):
 
 * **prefetch** (:class:`Prefetcher`): the pipeline's stateless stages of the next frames,
   ahead of time: reading and decoding the image, feature extraction and the disparity map
-  (file, SIMULATED or model inference; :meth:`vio_depth.pipeline.Pipeline.prepare`);
+  (file, SIMULATED or model inference; :meth:`vio_depth.pipeline.Pipeline.prepare`); a
+  tracker's (KLT's) frames take turns for the image and the tracks, in frame order, while
+  their disparity maps are made concurrently (``ordered``);
 * **pipeline** (the calling thread): the stateful stages in frame order: pairing,
   matching, triangulation, fit, depth (:meth:`~vio_depth.pipeline.Pipeline.process_prepared`);
 * **writer** (:class:`OrderedWriter`): encoding and writing the outputs (depth PNG,
@@ -158,24 +160,33 @@ class Prefetcher:
     ``depth`` values ahead, by ``workers`` threads (each produces whole items: with 2
     workers, frames t+1 and t+2 are prepared at the same time).
 
+    With ``ordered``, ``produce(i, turn)`` gets a context manager ``turn``: the blocks under
+    ``with turn:`` run one at a time, in the order of ``indices`` (a tracker follows the frames
+    in order inside it while the rest of each item, e.g. its disparity, runs concurrently). An
+    item that ends without entering its turn (an error before it) gives up its turn when it ends.
+
     Args:
-        produce: index -> value (e.g. a prepared frame); may raise. With ``workers > 1`` it
-            is called from several threads at once.
+        produce: index -> value (e.g. a prepared frame), or (index, turn) -> value with
+            ``ordered``; may raise. With ``workers > 1`` it is called from several threads at once.
         indices: the indices, in the order :meth:`get` returns their values.
         depth: values claimed ahead of :meth:`get` (in production or waiting), at least ``workers``.
         threaded: False runs ``produce`` inline in :meth:`get` (the sequential run).
         workers: producing threads.
+        ordered: hand ``produce`` its turn (above).
     """
 
-    def __init__(self, produce: Callable[[int], Any], indices: Iterable[int], depth: int = DEFAULT_DEPTH, *,
-                 threaded: bool = True, workers: int = 1, name: str = "vio-depth-prefetch"):
+    def __init__(self, produce: Callable[..., Any], indices: Iterable[int], depth: int = DEFAULT_DEPTH, *,
+                 threaded: bool = True, workers: int = 1, ordered: bool = False, name: str = "vio-depth-prefetch"):
         self._produce = produce
         self._indices = list(indices)
         self._threaded = threaded
+        self._ordered = ordered
         self._depth = max(1, depth, workers)
         self._cond = threading.Condition()
         self._claimed = 0  # positions handed to a worker so far
         self._delivered = 0  # positions returned by get()
+        self._turn_at = 0  # the position whose turn it is: every earlier one has passed its turn
+        self._passed: set[int] = set()  # later positions that passed their turn already
         self._ready: dict[int, tuple[Any, BaseException | None]] = {}
         self._stop = False
         self._threads = []
@@ -196,14 +207,41 @@ class Prefetcher:
                 pos = self._claimed
                 self._claimed += 1
             try:
-                item = (self._produce(self._indices[pos]), None)
+                item = (self._call(pos), None)
             except BaseException as exc:  # handed to the consumer, raised there
                 item = (None, exc)
             with self._cond:
+                self._pass_turn(pos)  # an item that never entered its turn gives it up here
                 self._ready[pos] = item
                 if item[1] is not None:
                     self._stop = True  # claim nothing more; earlier positions still complete
                 self._cond.notify_all()
+
+    def _call(self, pos: int) -> Any:
+        if not self._ordered:
+            return self._produce(self._indices[pos])
+        return self._produce(self._indices[pos], self._turn(pos) if self._threaded else contextlib.nullcontext())
+
+    @contextlib.contextmanager
+    def _turn(self, pos: int) -> Iterator[None]:
+        """Waits until every earlier position passed its turn; passes this one's on exit."""
+        with self._cond:
+            while self._turn_at < pos:
+                self._cond.wait()
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._pass_turn(pos)
+
+    def _pass_turn(self, pos: int) -> None:
+        """(with ``self._cond`` held) ``pos`` passed its turn; idempotent."""
+        if pos >= self._turn_at:
+            self._passed.add(pos)
+            while self._turn_at in self._passed:
+                self._passed.discard(self._turn_at)
+                self._turn_at += 1
+            self._cond.notify_all()
 
     def get(self) -> Any:
         """The next value; re-raises what ``produce`` raised for it.
@@ -215,7 +253,7 @@ class Prefetcher:
             if self._delivered >= len(self._indices):
                 raise StopIteration
             self._delivered += 1
-            return self._produce(self._indices[self._delivered - 1])
+            return self._call(self._delivered - 1)
         with self._cond:
             while self._delivered not in self._ready:
                 if self._delivered >= len(self._indices) or not any(t.is_alive() for t in self._threads):

@@ -150,11 +150,11 @@ def run_sequence(sequence: Sequence, pipeline: Pipeline, out_dir, settings: RunS
 
 def _prefetch_workers(pipeline: Pipeline) -> int:
     """Prefetch threads for ``pipeline``: several when its preparation may run concurrently
-    (a matcher whose ``extract`` is thread-safe, no model inference, which uses every core
-    by itself)."""
+    (a matcher whose ``extract`` is thread-safe, or a tracker whose frames take turns while
+    their disparity runs concurrently; no model inference, which uses every core by itself)."""
     matcher = pipeline.matcher
-    concurrent = (matcher is None or getattr(matcher, "concurrent_extract", False)) and \
-        getattr(pipeline.disparity_source, "kind", None) != DisparityKind.MODEL
+    concurrent = (matcher is None or getattr(matcher, "concurrent_extract", False) or pipeline.tracked is not None) \
+        and getattr(pipeline.disparity_source, "kind", None) != DisparityKind.MODEL
     return prefetch_workers(concurrent)
 
 

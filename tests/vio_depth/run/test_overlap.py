@@ -73,6 +73,58 @@ def test_prefetcher_reraises_the_workers_exception_object(workers):
     assert info.value is boom
 
 
+@pytest.mark.parametrize("threaded, workers", [(True, 2), (True, 4), (False, 1)])
+def test_ordered_prefetcher_takes_turns_in_index_order_and_overlaps_the_rest(threaded, workers):
+    """A tracker's frames: the block under ``turn`` runs one at a time in the order of the
+    indices (here reversed, as in the backward pass), the rest of each item concurrently; an
+    item that fails or skips its turn does not hold up the next ones."""
+    rng = np.random.default_rng(workers)
+    before, after = rng.uniform(0, 0.003, 30), rng.uniform(0, 0.006, 30)
+    turns, inside, active, most = [], [0], [0], [0]
+    lock = threading.Lock()
+    indices = list(range(29, -1, -1))
+
+    def produce(i, turn):
+        with lock:
+            active[0] += 1
+            most[0] = max(most[0], active[0])
+        try:
+            return _item(i, turn)
+        finally:
+            with lock:
+                active[0] -= 1
+
+    def _item(i, turn):
+        time.sleep(before[i])
+        if i == 20:
+            raise InputError("frame 20: unreadable")  # before its turn: gives the turn up by ending
+        if i == 10:
+            return -1  # no turn needed (features given)
+        with turn:
+            with lock:
+                inside[0] += 1
+                assert inside[0] == 1  # one at a time
+            turns.append(i)
+            time.sleep(0.0005)
+            with lock:
+                inside[0] -= 1
+        time.sleep(after[i])
+        return i
+
+    got = []
+    with Prefetcher(produce, indices, workers + 1, threaded=threaded, workers=workers, ordered=True) as p:
+        for _ in indices:
+            try:
+                got.append(p.get())
+            except InputError:
+                got.append("error")
+                break
+    assert turns[: len([i for i in indices if i > 20])] == [i for i in indices if i > 20]
+    assert turns == sorted(turns, reverse=True)  # taken in index order, never out of it
+    assert got == [i for i in indices if i > 20] + ["error"]
+    assert (most[0] > 1) == threaded and most[0] <= workers  # items were produced side by side
+
+
 def test_prefetcher_close_stops_blocked_workers():
     p = Prefetcher(lambda i: i, range(10_000), depth=2, workers=2)
     assert p.get() == 0
@@ -156,8 +208,8 @@ def test_overlapped_run_equals_the_sequential_run_byte_for_byte(mini_street, tmp
     assert _records(ovl_out)[1][0].get("backfilled") is True  # the backward pass ran in both
     t = json.loads((ovl_out / "metrics.json").read_text())["timings"]
     assert t["overlap"] is True and t["frames"] == 12 and t["frames_per_second"] > 0
-    # SIFT: one prefetch thread per core; klt's tracks follow the frames in order (one thread)
-    assert t["prefetch_workers"] == (min(os.cpu_count(), 4) if matcher == "sift" else 1)
+    # one prefetch thread per core: SIFT's extract concurrently, klt's frames take turns for the tracks
+    assert t["prefetch_workers"] == min(os.cpu_count(), 4)
     assert {"features", "matching", "triangulation", "write", "evaluation"} <= set(t["stages"])
     assert json.loads((seq_out / "metrics.json").read_text())["timings"]["overlap"] is False
 
