@@ -75,6 +75,50 @@ def skew(v) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def skews(v) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices of a stack of vectors ``v: (..., 3)`` (no checks: hot paths)."""
+    v = np.asarray(v, dtype=np.float64)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
+#: below this angle (rad) the Rodrigues coefficients are their Taylor series
+_SMALL_ANGLE = 1e-6
+#: within this angle (rad) of pi the logarithm goes through scipy (R - R^T loses the axis there)
+_NEAR_PI = 1e-3
+
+
+def so3_exp(phi) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of rotation vectors ``phi: (..., 3)`` rad (Rodrigues,
+    batched; for the small stacks of hot loops, where scipy's ``Rotation`` costs more than the maths)."""
+    phi = np.asarray(phi, dtype=np.float64)
+    theta = np.linalg.norm(phi, axis=-1)
+    small = theta < _SMALL_ANGLE
+    th = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
+    K = skews(phi)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def so3_log(R) -> np.ndarray:
+    """(..., 3) rotation vectors (rad, angle in [0, pi]) of rotation matrices ``R: (..., 3, 3)``
+    (batched inverse of :func:`so3_exp`; rotations within 1e-3 rad of pi go through scipy)."""
+    R = np.asarray(R, dtype=np.float64)
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(cos)
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    small = theta < _SMALL_ANGLE
+    f = np.where(small, 0.5 + theta**2 / 12.0, theta / (2.0 * np.sin(np.where(small, 1.0, theta))))
+    out = v * f[..., None]
+    near_pi = theta > np.pi - _NEAR_PI
+    if np.any(near_pi):
+        out[near_pi] = Rotation.from_matrix(R[near_pi]).as_rotvec()
+    return out
+
+
 def invert_transforms(T) -> np.ndarray:
     """Inverses of a stack of rigid transforms ``T: (N, 4, 4)`` ``T_a_b`` -> ``T_b_a`` (N, 4, 4)."""
     T = check_array("T", T, (None, 4, 4), finite=True)
@@ -90,9 +134,7 @@ def adjoints(T) -> np.ndarray:
     """(N, 6, 6) :func:`adjoint` of each rigid transform of ``T: (N, 4, 4)``."""
     T = check_array("T", T, (None, 4, 4), finite=True)
     R, t = T[:, :3, :3], T[:, :3, 3]
-    S = np.zeros((len(T), 3, 3))  # skew(t) per transform
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -t[:, 2], t[:, 1], -t[:, 0]
-    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = t[:, 2], -t[:, 1], t[:, 0]
+    S = skews(t)
     A = np.zeros((len(T), 6, 6))
     A[:, :3, :3] = R
     A[:, 3:, :3] = S @ R

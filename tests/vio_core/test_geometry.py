@@ -1,4 +1,4 @@
-"""Rigid transforms: inverse, relative poses, TUM rows, rotation angles, adjoints."""
+"""Rigid transforms: inverse, relative poses, TUM rows, rotation angles, adjoints, SO(3) exp/log."""
 
 import numpy as np
 import pytest
@@ -16,6 +16,9 @@ from vio_core import (
     relative_transform,
     rotation_angle_deg,
     skew,
+    skews,
+    so3_exp,
+    so3_log,
     transform_from_tum,
     transform_points,
     transform_to_tum,
@@ -96,3 +99,32 @@ def test_stacked_inverses_and_adjoints_match_the_single_ones():
     assert invert_transforms(np.zeros((0, 4, 4))).shape == (0, 4, 4)
     with pytest.raises(ShapeError):
         adjoints(T[0])  # one (4, 4) transform is not a stack
+
+
+def _rotation_vectors(rng, n=200):
+    """(n + 8, 3) rotation vectors: random angles up to pi, tiny ones, zero, pi and just under it."""
+    axes = rng.normal(size=(n + 8, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.r_[rng.uniform(0, np.pi, n), 0.0, 1e-9, 1e-7, 2e-6, 1e-3, np.pi - 2e-3, np.pi - 1e-5, np.pi]
+    return axes * angles[:, None]
+
+
+def test_so3_exp_and_log_match_scipy_from_zero_to_pi():
+    phi = _rotation_vectors(np.random.default_rng(3))
+    R = so3_exp(phi)
+    assert R.shape == (len(phi), 3, 3)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(phi).as_matrix(), atol=1e-12)
+    back = so3_log(R)
+    # the same rotation (at exactly pi, phi and -phi are one rotation)
+    np.testing.assert_allclose(so3_exp(back), R, atol=1e-10)
+    below = np.linalg.norm(phi, axis=1) < np.pi - 1e-6
+    np.testing.assert_allclose(back[below], phi[below], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(back, axis=1), np.linalg.norm(phi, axis=1), atol=1e-9)
+
+
+def test_so3_exp_log_and_skews_keep_leading_axes():
+    phi = _rotation_vectors(np.random.default_rng(4), 16)[:24].reshape(4, 6, 3)
+    assert so3_exp(phi).shape == (4, 6, 3, 3) and so3_log(so3_exp(phi)).shape == (4, 6, 3)
+    v = phi[1, 2]
+    np.testing.assert_array_equal(skews(phi)[1, 2], skew(v))
+    np.testing.assert_allclose(skews(phi) @ phi[..., None], 0.0, atol=1e-15)  # v x v = 0

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.checks import check_array
 from vio_core.errors import InputError
+from vio_core.geometry import so3_exp, so3_log
 
 #: samples per interpolation stencil (4: cubic)
 _STENCIL = 4
@@ -57,7 +58,8 @@ class PoseTimeline:
             raise InputError(f"pose timestamps must increase: sample {i + 1} ({self.timestamps[i + 1]:.6f} s) "
                              f"follows {self.timestamps[i]:.6f} s")
         self.max_extrapolation_s = float(max_extrapolation_s)
-        self._quats = Rotation.from_matrix(self.poses[:, :3, :3]).as_quat()
+        # the nearest rotation of each sample (poses read from files are orthonormal to ~1e-6 only)
+        self._rotations = Rotation.from_matrix(self.poses[:, :3, :3]).as_matrix()
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -83,10 +85,10 @@ class PoseTimeline:
         den = tk[:, :, None] - tk[:, None, :]  # (K, m, m): t_k - t_l
         eye = np.eye(m, dtype=bool)
         w = np.prod(np.where(eye, 1.0, np.broadcast_to(diff, den.shape) / np.where(eye, 1.0, den)), axis=2)
-        R_j = Rotation.from_quat(self._quats[j])
-        R_k = Rotation.from_quat(self._quats[idx.ravel()])
-        phi = (Rotation.from_quat(np.repeat(self._quats[j], m, axis=0)).inv() * R_k).as_rotvec().reshape(-1, m, 3)
+        R = self._rotations
+        R_j = R[j]
+        phi = so3_log(np.swapaxes(R_j, -1, -2)[:, None] @ R[idx])  # (K, m, 3): Log(R_j^T R_k)
         out = np.tile(np.eye(4), (len(t), 1, 1))
-        out[:, :3, :3] = (R_j * Rotation.from_rotvec(np.einsum("km,kmd->kd", w, phi))).as_matrix()
+        out[:, :3, :3] = R_j @ so3_exp(np.einsum("km,kmd->kd", w, phi))
         out[:, :3, 3] = np.einsum("km,kmd->kd", w, self.poses[idx, :3, 3])
         return out[0] if scalar else out
