@@ -37,7 +37,8 @@ from .disparity import DISPARITY_CHOICES, disparity_presets
 from .experiments import add_eval_parser, format_results, request_from_args, run_evaluation
 from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats
-from .pipeline import POINT_SPEC_FORMS, PRESET_FAMILIES, Pipeline, PipelineSettings, parse_points_spec
+from .pipeline import (POINT_SPEC_FORMS, POSE_PRESETS, PRESET_FAMILIES, Pipeline, PipelineSettings,
+                       default_matcher_preset, parse_points_spec)
 from .poses import POSE_UNCERTAINTY_PRESETS, GroundTruthPoseSettings
 from .report import build_report
 from .run import (
@@ -310,12 +311,23 @@ def _disparity_from_args(args, s: PipelineSettings) -> PipelineSettings:
 
 
 # --------------------------------------------------------------------------- commands
+def _default_marks(family: str, presets) -> dict[str, str]:
+    """Preset name -> the mark ``vio-depth presets`` prints after it: ``(default)``, or for the
+    matcher, which follows the pose source, the pose presets it is the default with."""
+    if family != "matcher":
+        return {presets.default: " (default)"}
+    with_poses: dict[str, list[str]] = {}
+    for pose in POSE_PRESETS:
+        with_poses.setdefault(default_matcher_preset(POSE_PRESETS[pose]), []).append(pose)
+    return {name: f" (default with --poses {', '.join(poses)})" for name, poses in with_poses.items()}
+
+
 def _cmd_presets() -> int:
     for family, presets in PRESET_FAMILIES.items():
         print(f"{family}:")
+        marks = _default_marks(family, presets)
         for name in presets:
-            mark = " (default)" if name == presets.default else ""
-            print(f"  {name:20s} {presets.describe(name)}{mark}")
+            print(f"  {name:20s} {presets.describe(name)}{marks.get(name, '')}")
     print("pose uncertainty (--pose-uncertainty; default: the sequence's kind of poses):")
     for name in POSE_UNCERTAINTY_PRESETS:
         print(f"  {name:20s} {POSE_UNCERTAINTY_PRESETS.describe(name)}")

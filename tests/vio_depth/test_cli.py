@@ -197,6 +197,14 @@ def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
     assert "--guided-matching needs a nearest-neighbour matcher (sift)" in capsys.readouterr().err
 
 
+def test_presets_mark_the_matcher_each_pose_source_brings(capsys):
+    assert main(["presets"]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")}
+    assert lines["klt"].endswith("(default with --poses gt)")
+    assert lines["sift"].endswith("(default with --poses imu, imu_real_mav, vio)")
+    assert lines["gt"].endswith("(default)") and "default" not in lines["disk+lightglue"]
+
+
 def test_klt_matcher_and_edge_guard_flags(capsys):
     assert main(["config", "--dump", "--matcher", "klt", "--edge-guard", "0.1"]) == 0
     out = capsys.readouterr().out
