@@ -60,6 +60,13 @@ as indicative, for the 512x384 ASL sample); ``--poses gt`` on 1242x375:
 ``afap`` (and ``prefetch``) frames/s >= 0.8 x bare SIFT's (the stream's push, no output writing:
 ``bench_throughput.py`` times the whole CLI run).
 
+**Accuracy** (rendered ASL datasets, which carry the truth): ``ATE mm`` -- the odometry's live
+poses against the true ones after an SE(3) alignment (RMSE of the positions); ``AbsRel`` -- the
+mean over the frames with depth of the depth against the true depth behind the SIMULATED
+disparity (capped at 10 m). A vio row's verdict also requires its ATE within 10 % and its
+AbsRel within 5 % of the default configuration's (sift, ``--points sfm``, the inline window)
+``afap`` row of the same dataset in the same run, when that row was measured (issue 24).
+
 **Where the odometry's window runs** (``--vio-backends inline,process``, ``--vio-lag N``,
 ``--vio-when-ready``): ``inline`` (the default: a keyframe's frame waits for the window's
 update) or ``process`` (the window in a worker process, :mod:`vio_depth.landmarks.backend`;
@@ -102,6 +109,8 @@ import realtime_data as data  # noqa: E402
 
 from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
+from vio_depth.evaluation import umeyama_alignment  # noqa: E402
+from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
 from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
@@ -112,6 +121,10 @@ STAGES = (*PIPELINE_STAGES, "matching", "triangulation")
 KLT_MAX, KLT_MIN, KLT_SPACING = 300, 200, 20
 #: mode ``prefetch``: extraction threads and frames in flight
 PREFETCH_THREADS, PREFETCH_WINDOW = 2, 3
+#: depth cap of the accuracy column's AbsRel (the rendered ASL rooms are under 7 m deep)
+ACCURACY_MAX_DEPTH_M = 10.0
+#: issue 24: the fast configuration's ATE within 10 % and AbsRel within 5 % of the default's
+ATE_TOLERANCE, ABS_REL_TOLERANCE = 0.10, 0.05
 
 
 # ----------------------------------------------------------------------------- replay and its accounting
@@ -230,6 +243,8 @@ class StreamRunner:
         self.with_depth = 0
         self.statuses: dict[str, int] = {}
         self.posed: list[bool] = []  # per processed frame: the pose source gave it a pose
+        self.estimates: dict[int, np.ndarray] = {}  # frame index -> the odometry's live T_w_c (vio)
+        self.abs_rel: list[float] = []  # per frame with depth, where the dataset knows the true depth
 
     def inputs(self, i: int) -> tuple:
         """``(image, disparity, kwargs)`` of frame ``i``'s push (decoding: not timed)."""
@@ -258,7 +273,30 @@ class StreamRunner:
         result = self.stream.push(image, disparity, **kwargs)
         seconds = time.perf_counter() - start
         self.record(result, seconds)
+        self.score(i, result, disparity)  # after the timing (the replay's clock is virtual)
         return seconds
+
+    def score(self, i: int, result, disparity: np.ndarray) -> None:
+        """Keep frame ``i``'s live pose (a tracking source) and its depth's AbsRel (capped at
+        :data:`ACCURACY_MAX_DEPTH_M`) where the dataset knows the truth."""
+        pose = result.frame_pose
+        if pose is not None and pose.ok and pose.T_w_c is not None:
+            self.estimates[i] = np.asarray(pose.T_w_c, dtype=np.float64)
+        if result.depth is not None and self.ds.true_depth is not None:
+            self.abs_rel.append(compute_metrics(result.depth, self.ds.true_depth(disparity), 1e-3,
+                                                ACCURACY_MAX_DEPTH_M).abs_rel)
+
+    def ate_m(self) -> float | None:
+        """RMSE of the live positions against the dataset's true ones after an SE(3) alignment
+        (metres), or None without truth or with fewer than 3 posed frames."""
+        truth = self.ds.truth_T_w_c
+        if truth is None or len(self.estimates) < 3:
+            return None
+        ids = sorted(self.estimates)
+        est = np.stack([self.estimates[i][:3, 3] for i in ids])
+        ref = truth[ids, :3, 3]
+        R, t, _ = umeyama_alignment(est, ref)
+        return float(np.sqrt(np.mean(np.sum((est @ R.T + t - ref) ** 2, axis=1))))
 
     def overlapped(self, window: int) -> Replay:
         """Every frame through ``submit``, at most ``window`` in flight (mode ``prefetch``)."""
@@ -370,6 +408,9 @@ class Row:
     statuses: dict[str, int] | None = None
     matcher: str = "-"  # the pipeline's --matcher ("-" for a baseline)
     posed: list[bool] | None = None  # per processed frame: it had a pose
+    ate_m: float | None = None  # live poses against the truth (vio datasets with truth)
+    abs_rel: float | None = None  # mean over the frames with depth (datasets with the true depth)
+    default: bool = False  # the CLI's defaults for this pose source (sift, two-view points, inline window)
 
     def steady_p99_ms(self) -> float:
         """p99 latency over the frames after the first posed one (the pose source's start-up
@@ -389,12 +430,15 @@ class Row:
                 "-" if baseline else str(len(r.dropped)), "-" if baseline or r.afap else str(r.late),
                 "-" if baseline else str(self.with_depth), f"{r.fps:.1f}", f"{p50:.0f}", f"{p90:.0f}", f"{p99:.0f}",
                 "-" if baseline else f"{self.steady_p99_ms():.0f}",
-                "-" if self.rss_mib is None else f"{self.rss_mib:.0f}"]
+                "-" if self.rss_mib is None else f"{self.rss_mib:.0f}",
+                "-" if self.ate_m is None else f"{1000 * self.ate_m:.1f}",
+                "-" if self.abs_rel is None else f"{self.abs_rel:.4f}"]
 
 
 HEADER = ["dataset", "size", "poses / baseline", "matcher", "mode", "frames", "processed", "dropped", "late",
           "with depth",
-          "frames/s", "latency p50 ms", "p90 ms", "p99 ms", "p99 after start ms", "peak RSS MiB"]
+          "frames/s", "latency p50 ms", "p90 ms", "p99 ms", "p99 after start ms", "peak RSS MiB", "ATE mm",
+          "AbsRel"]
 
 
 def stage_means(runner: StreamRunner) -> dict[str, float]:
@@ -432,8 +476,10 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
         label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "") + (
             f", queue {backend.max_pending_keyframes}" if backend.max_pending_keyframes > 1 else "") + (
             f", catch-up {backend.catch_up_keyframes}") + (", provisional" if backend.provisional_landmarks else "")
+    default = matcher == "sift" and points is None and not process_backend
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
-               peak_rss_mib(), dict(runner.statuses), label, list(runner.posed))
+               peak_rss_mib(), dict(runner.statuses), label, list(runner.posed), runner.ate_m(),
+               float(np.mean(runner.abs_rel)) if runner.abs_rel else None, default)
 
 
 def baseline_row(ds: data.StreamData, baseline) -> Row:
@@ -445,6 +491,34 @@ def baseline_row(ds: data.StreamData, baseline) -> Row:
 def table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def accuracy_against_default(row: Row, rows: list[Row]) -> tuple[str, bool]:
+    """The verdict's accuracy clause for a vio row, and whether it holds: its ATE and AbsRel
+    against the default configuration's afap row of the same dataset in this run (issue 24:
+    within 10 % and 5 %); it holds where nothing can be compared (the text says why)."""
+    if row.ate_m is None and row.abs_rel is None:
+        return "; accuracy: no truth in this dataset", True
+    base = [r for r in rows if r.dataset == row.dataset and r.what == "vio" and r.default and r.mode == "afap"]
+    ate = "-" if row.ate_m is None else f"{1000 * row.ate_m:.1f} mm"
+    text = f"; ATE {ate}, AbsRel {'-' if row.abs_rel is None else f'{row.abs_rel:.4f}'}"
+    if row.default:
+        return text + " (the default configuration)", True
+    if not base:
+        return text + " (no default row in this run to compare with)", True
+    b = base[0]
+    checks, held = [], True
+    if row.ate_m is not None and b.ate_m:
+        ratio = row.ate_m / b.ate_m
+        held &= ratio <= 1 + ATE_TOLERANCE
+        checks.append(f"ATE {ratio:.2f} x the default's {1000 * b.ate_m:.1f} mm "
+                      f"({'within' if ratio <= 1 + ATE_TOLERANCE else 'beyond'} +{ATE_TOLERANCE:.0%})")
+    if row.abs_rel is not None and b.abs_rel:
+        ratio = row.abs_rel / b.abs_rel
+        held &= ratio <= 1 + ABS_REL_TOLERANCE
+        checks.append(f"AbsRel {ratio:.2f} x the default's {b.abs_rel:.4f} "
+                      f"({'within' if ratio <= 1 + ABS_REL_TOLERANCE else 'beyond'} +{ABS_REL_TOLERANCE:.0%})")
+    return text + ("; " + ", ".join(checks) if checks else ""), held
 
 
 def verdicts(rows: list[Row]) -> list[str]:
@@ -468,6 +542,9 @@ def verdicts(rows: list[Row]) -> list[str]:
                         f"{steady:.0f} ms after the start), {drops} of {rt[0].frames} frames dropped"
             else:
                 text += "; no recorded-rate row (p99 target not checked)"
+            accuracy, held = accuracy_against_default(row, rows)
+            text += accuracy
+            ok = ok and held
             out.append(f"{text}: **{'PASS' if ok else 'FAIL'}**")
         if row.what == "gt" and row.size == "1242x375" and row.mode in ("afap", "prefetch"):
             sift = [r for r in rows if r.dataset == row.dataset and r.what == BareSift.name]

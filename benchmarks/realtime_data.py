@@ -65,6 +65,11 @@ class StreamData:
         imu: the IMU samples and calibration (``vio`` datasets), or None.
         poses: the pose source it is run with (``gt`` or ``vio``); ``pairing``: pairing preset.
         pose_kind: what its poses are (:data:`vio_depth.poses.POSE_UNCERTAINTY_PRESETS` name).
+        truth_T_w_c: (N, 4, 4) the true camera poses of a ``vio`` dataset (rendered: only
+            evaluate the odometry), or None.
+        true_depth: ``true_depth(disparity) -> (H, W) metres`` (0: none) where the disparity is an
+            exact map of the true depth (the rendered ASL datasets: the inverse of
+            :func:`_save_disparity`), else None.
     """
 
     name: str
@@ -77,6 +82,8 @@ class StreamData:
     T_w_c: np.ndarray | None = None
     imu: ImuData | None = None
     pose_kind: str = "exact"
+    truth_T_w_c: np.ndarray | None = None
+    true_depth: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -89,7 +96,8 @@ class StreamData:
         if n is None or n >= len(self):
             return self
         return StreamData(self.name, self.description, self.camera, self.timestamps[:n], self.load, self.poses,
-                          self.pairing, None if self.T_w_c is None else self.T_w_c[:n], self.imu, self.pose_kind)
+                          self.pairing, None if self.T_w_c is None else self.T_w_c[:n], self.imu, self.pose_kind,
+                          None if self.truth_T_w_c is None else self.truth_T_w_c[:n], self.true_depth)
 
 
 def _rgb(image: np.ndarray) -> np.ndarray:
@@ -111,6 +119,11 @@ def _save_disparity(path: Path, depth: np.ndarray) -> None:
     np.save(path, np.where(depth > 0, 2.0 / np.maximum(depth, 1e-6) + 0.1, 0.0).astype(np.float32))
 
 
+def _depth_of_disparity(disparity: np.ndarray) -> np.ndarray:
+    """The true depth (metres, 0: none) behind a disparity written by :func:`_save_disparity`."""
+    return np.where(disparity > 0.1 + 1e-6, 2.0 / np.maximum(disparity - 0.1, 1e-6), 0.0)
+
+
 # ----------------------------------------------------------------------------- the datasets
 def asl_room(cache: Path, log=print) -> StreamData:
     """The generated ASL sample (room, SIMULATED), rendered into ``cache/asl_room`` on first use."""
@@ -120,19 +133,22 @@ def asl_room(cache: Path, log=print) -> StreamData:
         _render_asl(folder, log)
         (folder / ASL_MARKER).write_text(json.dumps(want))
     return _rendered("asl_room", "generated ASL sample: room, SIMULATED images, IMU and disparity (affine map of "
-                     "the true inverse depth)", folder, "vio", "indoor")
+                     "the true inverse depth)", folder, "vio", "indoor", _depth_of_disparity)
 
 
-def _rendered(name: str, label: str, folder: Path, poses: str, pairing: str) -> StreamData:
+def _rendered(name: str, label: str, folder: Path, poses: str, pairing: str,
+              true_depth: Callable[[np.ndarray], np.ndarray] | None = None) -> StreamData:
     """A rendered sequence at ``folder`` with its disparity files in ``folder/disparity``; it
-    streams its IMU under ``vio``, its poses otherwise."""
+    streams its IMU under ``vio`` (its poses then only evaluate), its poses otherwise.
+    ``true_depth``: the depth behind those disparity files (:attr:`StreamData.true_depth`)."""
     seq = open_sequence(folder)
     disparity = FileDisparity(folder / "disparity")
     frames = [seq[i] for i in range(len(seq))]
-    extra = {"imu": seq.imu} if poses == "vio" else {"T_w_c": np.stack([f.T_w_c for f in frames])}
+    poses_w_c = np.stack([f.T_w_c for f in frames])
+    extra = {"imu": seq.imu, "truth_T_w_c": poses_w_c} if poses == "vio" else {"T_w_c": poses_w_c}
     return StreamData(name, label, seq.camera, np.array([f.timestamp for f in frames]),
                       lambda i: (_rgb(frames[i].image()), np.asarray(disparity(frames[i]), np.float32)),
-                      poses, pairing, pose_kind=seq.pose_kind, **extra)
+                      poses, pairing, pose_kind=seq.pose_kind, true_depth=true_depth, **extra)
 
 
 def _render_asl(folder: Path, log) -> None:
@@ -170,7 +186,7 @@ def asl_loop(cache: Path, log=print) -> StreamData:
             _save_disparity(out / f"{frame.stem}.npy", np.load(folder / "depth" / f"{frame.stem}.npy"))
         (folder / ASL_MARKER).write_text(json.dumps(want))
     return _rendered("asl_loop", "room loop at 752x564 (generated ASL): SIMULATED images, IMU and disparity (affine "
-                     "map of the true inverse depth)", folder, "vio", "indoor")
+                     "map of the true inverse depth)", folder, "vio", "indoor", _depth_of_disparity)
 
 
 def euroc(cache: Path, log=print) -> StreamData | None:

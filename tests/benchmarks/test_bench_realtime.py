@@ -41,3 +41,41 @@ def test_a_gt_row_has_every_frame_posed_and_a_latency_after_the_start(rate_scale
     lat = 1000 * row.replay.latencies
     assert row.steady_p99_ms() == pytest.approx(np.percentile(lat[1:], 99))
     assert sum(row.statuses.values()) == len(row.replay.processed) and row.with_depth >= 1
+
+
+def test_the_ate_is_the_aligned_rmse_of_the_live_positions():
+    """A trajectory moved and turned rigidly has ATE 0; a 3 cm error on one of four frames gives
+    its RMSE after the alignment (the alignment spreads part of it: below 3 / 2 cm)."""
+    ds = _room_gt(4)
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    truth = np.stack([np.eye(4)] * 4)
+    truth[:, :3, 3] = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.5]]
+    runner = br.StreamRunner(replace(ds, truth_T_w_c=truth))
+    assert runner.ate_m() is None  # nothing posed yet
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix(), [5, -2, 1]
+    runner.estimates = {i: M @ truth[i] for i in range(4)}
+    assert runner.ate_m() == pytest.approx(0.0, abs=1e-12)
+    runner.estimates[2] = runner.estimates[2] @ np.array([[1, 0, 0, 0.03], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    assert 0.005 < runner.ate_m() < 0.015
+
+
+def _vio_row(default: bool, ate_m: float, abs_rel: float, matcher: str = "sift") -> br.Row:
+    replay = br.Replay(np.zeros(3), afap=True)
+    return br.Row("asl", "752x564", "vio", "afap", 3, replay, 3, ate_m=ate_m, abs_rel=abs_rel, default=default,
+                  matcher=matcher)
+
+
+def test_a_fast_configuration_is_judged_against_the_default_row_of_the_same_run():
+    base = _vio_row(True, 0.010, 0.020)
+    text, held = br.accuracy_against_default(_vio_row(False, 0.0109, 0.0209, "klt"), [base])
+    assert held and "ATE 1.09 x the default's 10.0 mm (within +10%)" in text
+    text, held = br.accuracy_against_default(_vio_row(False, 0.0112, 0.0200, "klt"), [base])
+    assert not held and "beyond +10%" in text
+    text, held = br.accuracy_against_default(_vio_row(False, 0.0100, 0.0212, "klt"), [base])
+    assert not held and "AbsRel 1.06 x" in text and "beyond +5%" in text
+    text, held = br.accuracy_against_default(_vio_row(False, 0.0100, 0.0212, "klt"), [])
+    assert held and "no default row" in text
