@@ -200,7 +200,7 @@ def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
 def test_presets_mark_the_matcher_each_pose_source_brings(capsys):
     assert main(["presets"]) == 0
     lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")}
-    assert lines["klt"].endswith("(default with --poses gt)")
+    assert lines["klt"].endswith("(default with --poses gt, vio_realtime)")
     assert lines["sift"].endswith("(default with --poses imu, imu_real_mav, vio)")
     assert lines["gt"].endswith("(default)") and "default" not in lines["disk+lightglue"]
 

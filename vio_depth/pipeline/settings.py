@@ -27,7 +27,7 @@ from vio_core.settings import Presets, override, to_plain
 
 from ..disparity import DisparitySettings
 from ..keyframes import PAIRING_PRESETS, PairingSettings
-from ..landmarks import LandmarkSettings
+from ..landmarks import LandmarkSettings, WindowBackendSettings
 from ..poses import GroundTruthPoseSettings, ImuPoseSettings
 from ..rescale import RESCALER_PRESETS, RescalerSettings
 from .point_source import PointSourceSpec, parse_points_spec
@@ -38,20 +38,26 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 
 #: pose-source presets (``--poses``): ``gt`` (the sequence's poses), ``imu`` (gtsam
 #: preintegration, the covariance calibrated on EuRoC V1_01), ``imu_real_mav`` (``imu`` with the
-#: accelerometer noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md) and
-#: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md). They live here, above
+#: accelerometer noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md),
+#: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md) and ``vio_realtime``
+#: (``vio`` with its window's keyframe updates in a worker process, taken over 3 frames later,
+#: and KLT tracks unless a matcher is named: :func:`default_matcher_preset`; docs/benchmarks.md
+#: "vio_realtime, 2026-12-06"). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
     "imu": ImuPoseSettings(),
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
     "vio": VioSettings(),
+    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=3)),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",
     "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
                     "(calibrated on EuRoC V1_01)",
     "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
+    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 3 frames later), KLT tracks; "
+                    "drifts more outdoors, fewer frames get depth",
 })
 
 
@@ -96,10 +102,18 @@ def default_matcher_preset(poses: PoseSettings) -> str:
     on KITTI-tiny's 1242x375 frames where sift runs 0.37 x, and with :data:`TRACKER_DEFAULTS` writes
     no wrong frame and a lower AbsRel than sift on street (0.0194 vs 0.0219), room (0.0121 vs
     0.0127) and KITTI-tiny (0.0434 vs 0.0461) (docs/benchmarks.md "The default matcher, 2026-12-06").
-    ``sift`` with an estimated pose source (``imu``, ``imu_real_mav``, ``vio``): KLT's odometry
-    drifts twice as far as sift's on street (ATE 12.7 vs 6.0 cm), and klt under ``imu`` is unmeasured.
-    :class:`PipelineSettings` itself keeps ``sift`` as its field default."""
-    return "klt" if isinstance(poses, GroundTruthPoseSettings) else "sift"
+    ``klt`` too with the odometry's window in a worker process (``vio_realtime``): the worker
+    answers frames from a window a few frames old, which tracks follow and SIFT's descriptor
+    matches against keyframes do not (a lag of 6 cost SIFT 13.8 vs 6.7 mm ATE; with klt, lag 3,
+    the generated ASL datasets keep 20 Hz with the default's ATE and AbsRel).
+    ``sift`` with the other estimated pose sources (``imu``, ``imu_real_mav``, ``vio``): KLT's
+    odometry drifts twice as far as sift's on street (ATE 12.7 vs 6.0 cm), and klt under ``imu``
+    is unmeasured. :class:`PipelineSettings` itself keeps ``sift`` as its field default."""
+    if isinstance(poses, GroundTruthPoseSettings):
+        return "klt"
+    if isinstance(poses, VioSettings) and poses.backend.kind == "process":
+        return "klt"
+    return "sift"
 
 
 @dataclass(frozen=True)

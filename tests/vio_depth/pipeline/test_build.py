@@ -51,8 +51,10 @@ def _frame(index: int, t: float) -> Frame:
 
 
 def test_each_pose_preset_builds_its_source_from_its_settings_type():
-    assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio"] and POSE_PRESETS.default == "gt"
+    assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio", "vio_realtime"] and POSE_PRESETS.default == "gt"
     assert POSE_PRESETS["vio"] == VioSettings() and POSE_PRESETS["imu"] == ImuPoseSettings()
+    realtime = POSE_PRESETS["vio_realtime"].backend
+    assert realtime.kind == "process" and realtime.lag_frames == 3
     seq = _Sequence(_imu())
     gt = build_pose_stage("gt", seq)
     assert isinstance(gt.source, GroundTruthPoses) and gt.tracker is None

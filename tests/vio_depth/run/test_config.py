@@ -10,7 +10,8 @@ from vio_depth.run import load_config, read_config, resolve_config
 
 
 @pytest.mark.parametrize("poses, expected", [("gt", KltSettings), ("imu", SiftSettings),
-                                             ("imu_real_mav", SiftSettings), ("vio", SiftSettings)])
+                                             ("imu_real_mav", SiftSettings), ("vio", SiftSettings),
+                                             ("vio_realtime", KltSettings)])
 def test_the_matcher_follows_the_pose_source_when_nothing_names_one(poses, expected):
     assert default_matcher_preset(POSE_PRESETS[poses]) == ("klt" if expected is KltSettings else "sift")
     by_flag, _ = resolve_config({"poses": poses})
@@ -62,3 +63,14 @@ def test_read_config_and_load_config(tmp_path):
     path.write_text("[matcher\n")
     with pytest.raises(SettingsError, match="c.toml"):
         read_config(path)
+
+
+def test_vio_realtime_is_vio_with_the_window_in_a_worker_and_klt():
+    s, _ = resolve_config({"poses": "vio_realtime"})
+    assert s.poses.backend.kind == "process" and s.poses.backend.lag_frames == 3
+    assert isinstance(s.matcher, KltSettings) and s.pairing.allow_weak_pairs is False
+    assert s.preset_names()["poses"] == "vio_realtime"
+    # the worker, asked for in a file under plain vio, brings klt too; a named sift stays
+    worker = {"poses": {"backend": {"kind": "process"}}}
+    assert isinstance(resolve_config({"poses": "vio"}, worker)[0].matcher, KltSettings)
+    assert isinstance(resolve_config({"poses": "vio", "matcher": "sift"}, worker)[0].matcher, SiftSettings)
