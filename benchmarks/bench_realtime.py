@@ -109,7 +109,7 @@ import realtime_data as data  # noqa: E402
 
 from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
-from vio_depth.evaluation import umeyama_alignment  # noqa: E402
+from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error  # noqa: E402
 from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
 from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
@@ -293,10 +293,9 @@ class StreamRunner:
         if truth is None or len(self.estimates) < 3:
             return None
         ids = sorted(self.estimates)
-        est = np.stack([self.estimates[i][:3, 3] for i in ids])
-        ref = truth[ids, :3, 3]
-        R, t, _ = umeyama_alignment(est, ref)
-        return float(np.sqrt(np.mean(np.sum((est @ R.T + t - ref) ** 2, axis=1))))
+        t = self.ds.timestamps[ids]
+        est = CameraTrajectory(t, np.stack([self.estimates[i] for i in ids]))
+        return float(absolute_trajectory_error(est, CameraTrajectory(t, truth[ids])).translation.rmse)
 
     def overlapped(self, window: int) -> Replay:
         """Every frame through ``submit``, at most ``window`` in flight (mode ``prefetch``)."""

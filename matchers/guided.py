@@ -52,7 +52,7 @@ from threadpoolctl import threadpool_limits
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import InputError, SettingsError
-from vio_core.geometry import skew
+from vio_core.geometry import skew, skews
 
 from .base import Features, Matcher, Matches
 
@@ -157,19 +157,10 @@ def epipolar_lines(prior: EpipolarPrior, uv_a) -> tuple[np.ndarray, np.ndarray]:
     if prior.covariance is not None:
         # A_i = [-[t]x R [x_i]x, -[u_i]x R] (module docstring), then to pixel lines of b
         tR = skew(t) @ R
-        A = np.concatenate([-np.einsum("ij,njk->nik", tR, skew_rows(x)), -skew_rows(u) @ R], axis=2)  # (N, 3, 6)
+        A = np.concatenate([-np.einsum("ij,njk->nik", tR, skews(x)), -skews(u) @ R], axis=2)  # (N, 3, 6)
         A = np.einsum("ji,njk->nik", Kb_inv, A)  # K_b^-T A
         cov = A @ prior.covariance @ A.transpose(0, 2, 1)
     return lines * scale[:, None], cov * (scale**2)[:, None, None]
-
-
-def skew_rows(v) -> np.ndarray:
-    """``(N, 3, 3)`` cross-product matrices of the rows of ``v: (N, 3)``."""
-    v = check_array("v", v, (None, 3))
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return out
 
 
 def band_half_widths(prior: EpipolarPrior, uv_a, uv_b, settings: GuidedSettings) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from vio_core.checks import check_array, check_transform
+from vio_core.geometry import skews
 
 # Sampson distance: below this resolution (pixels) floating-point rounding dominates
 _SAMPSON_RESOLUTION_PX = 1e-3
@@ -44,10 +45,7 @@ def fundamental_from_pose(T_ref_cur, K_cur, K_ref) -> np.ndarray:
 
 def _fundamental(R, t, K_cur_inv, K_ref_inv) -> np.ndarray:
     """(..., 3, 3) unit-norm fundamental matrices of poses ``R: (..., 3, 3)``, ``t: (..., 3)``."""
-    tx = np.zeros(t.shape + (3,))
-    tx[..., 0, 1], tx[..., 0, 2], tx[..., 1, 2] = -t[..., 2], t[..., 1], -t[..., 0]
-    tx[..., 1, 0], tx[..., 2, 0], tx[..., 2, 1] = t[..., 2], -t[..., 1], t[..., 0]
-    F = K_ref_inv.T @ tx @ R @ K_cur_inv
+    F = K_ref_inv.T @ skews(t) @ R @ K_cur_inv
     flat = F.reshape(F.shape[:-2] + (1, 9))
     norm = np.sqrt((flat @ np.swapaxes(flat, -1, -2))[..., 0])  # (..., 1): |F|, a BLAS dot as np.linalg.norm
     with np.errstate(divide="ignore", invalid="ignore"):

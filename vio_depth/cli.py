@@ -71,8 +71,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     """The flags that shape the settings (shared by ``run`` and ``config``); all default to None."""
     p.add_argument("--config", default=None, metavar="FILE", help="TOML settings file (see `vio-depth config --dump`)")
     g = p.add_argument_group("pipeline")
-    g.add_argument("--matcher", default=None, help="matcher preset (see `vio-depth presets`; default: klt with --poses gt, sift with imu/vio "
-                        "poses or --guided-matching)")
+    g.add_argument("--matcher", default=None,
+                   help="matcher preset (see `vio-depth presets`; default: klt with --poses gt or vio_realtime, sift "
+                        "with the other poses or --guided-matching)")
     g.add_argument("--guided-matching", action="store_true", default=None,
                    help="match each keypoint only inside its epipolar band, widened by the pose's stated "
                         "uncertainty (SIFT; [matcher.guided] in a config file; default off)")

@@ -24,6 +24,7 @@ import numpy as np
 
 from vio_core.checks import check_array, check_transform
 from vio_core.errors import InputError, SettingsError
+from vio_core.geometry import so3_exp
 
 from ..frame import ImuData
 from .trajectory import Trajectory
@@ -109,15 +110,6 @@ def simulate_imu(trajectory: Trajectory, t, T_c_i, *, noise: ImuNoise | None = N
     return imu, {"gyro_bias": bg, "accel_bias": ba}
 
 
-def _so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector ``phi: (3,)`` rad (Rodrigues)."""
-    theta = float(np.linalg.norm(phi))
-    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K
-
-
 def integrate_imu(t, gyro, accel, R_w_i0, p_w0, v_w0, gravity_w=GRAVITY_W):
     """Reference strapdown integration of bias-free IMU samples (trapezoidal / midpoint).
 
@@ -138,7 +130,7 @@ def integrate_imu(t, gyro, accel, R_w_i0, p_w0, v_w0, gravity_w=GRAVITY_W):
     Rs, ps, vs = [R.copy()], [p.copy()], [v.copy()]
     for k in range(len(t) - 1):
         dt = t[k + 1] - t[k]
-        R_next = R @ _so3_exp(0.5 * (gyro[k] + gyro[k + 1]) * dt)
+        R_next = R @ so3_exp(0.5 * (gyro[k] + gyro[k + 1]) * dt)
         a0 = R @ accel[k] + g
         a1 = R_next @ accel[k + 1] + g
         p = p + v * dt + (2.0 * a0 + a1) * dt * dt / 6.0
