@@ -52,6 +52,9 @@ class RescalerSettings:
             covariance, which includes the errors the points share, e.g. their pose's) of at
             most this. A frame whose own fit exceeds it tries the fallbacks, which obey the
             same bound; without one the frame has no depth (status ``uncertain_fit``).
+        predicted_error_max_depth: metres; the predicted error is the mean over the pixels
+            whose fitted depth is within this (inf: every pixel with depth). 80 m, the
+            range a LiDAR-evaluated drive is scored on; indoors no pixel comes near it.
         max_fallback_error: a tighter bound for the fallbacks only, or None (the default):
             ``max_fit_error``.
         max_disparity_spread: points where the disparity varies by more than this fraction
@@ -80,6 +83,7 @@ class RescalerSettings:
     max_fallback_age: int = 10
     temporal: KalmanSettings | None = KalmanSettings()
     max_fit_error: float = 0.03
+    predicted_error_max_depth: float = 80.0
     max_fallback_error: float | None = None
     max_disparity_spread: float | None = None
     spread_radius_px: int = 3
@@ -89,6 +93,7 @@ class RescalerSettings:
         if self.max_fallback_age < 1:
             raise SettingsError(f"RescalerSettings.max_fallback_age must be >= 1, got {self.max_fallback_age!r}")
         require_positive(self, "max_fit_error", finite=False)  # relative errors
+        require_positive(self, "predicted_error_max_depth", finite=False)
         if self.max_disparity_spread is not None:
             require_positive(self, "max_disparity_spread", finite=False)
         if isinstance(self.spread_radius_px, bool) or not isinstance(self.spread_radius_px, int) \
@@ -416,15 +421,17 @@ class Rescaler:
     def _predicted_error(self, fit: AffineFit, disparity_map, anchors, covariance=None, extra: float = 0.0) -> float:
         """Predicted mean relative depth error of ``fit`` (with ``covariance`` instead of its
         own when given; plus an error ``extra`` that no rescaling removes, when finite): over
-        the map when given, else at the two anchors; ``inf`` when it cannot be predicted."""
+        the map's pixels within ``predicted_error_max_depth`` when given, else at the two
+        anchors; ``inf`` when it cannot be predicted."""
         cov = fit.covariance if covariance is None else covariance
         extra = float(extra) if np.isfinite(extra) else 0.0
+        max_depth = self.settings.predicted_error_max_depth
         if disparity_map is not None:
-            return expected_relative_error(disparity_map, fit.alpha, fit.beta, cov, extra)
+            return expected_relative_error(disparity_map, fit.alpha, fit.beta, cov, extra, max_depth=max_depth)
         if anchors is None:
             return float("inf")
         return expected_relative_error(np.asarray([anchors], dtype=np.float64), fit.alpha, fit.beta, cov, extra,
-                                       max_pixels=2)
+                                       max_depth=max_depth, max_pixels=2)
 
     def _refused(self, raw, scale, estimate, age, error, reasons, pose_error=None) -> RescaleResult:
         reasons.append(f"fallback refused: predicted relative depth error {error:.3g} > "

@@ -94,6 +94,7 @@ SETTING_RANGES: dict[str, str] = {
     "RescalerSettings.max_fallback_age": "[1, inf)",
     "RescalerSettings.max_fallback_error": "(0, inf]",  # inf: no bound (benchmarks/bench_fallback.py)
     "RescalerSettings.max_fit_error": "(0, inf]",  # inf: no bound
+    "RescalerSettings.predicted_error_max_depth": "(0, inf]",  # inf: every pixel with depth
     "RescalerSettings.max_disparity_spread": "(0, inf]",  # None: every point fitted
     "RescalerSettings.spread_radius_px": "[1, inf)",
     "RansacSettings.inlier_sigmas": "(0, inf)",
