@@ -40,16 +40,42 @@ def finite(a: np.ndarray, **kwargs) -> np.ndarray:
     return a if np.isfinite(a).all() else np.nan_to_num(a, **kwargs)
 
 
+def _adjugate3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 3, 3) adjugates and (M,) determinants of ``A: (M, 3, 3)``, by cofactors (row-wise
+    products: some 30 array operations instead of a LAPACK call per matrix)."""
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
+    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
+    adj = np.empty(A.shape, np.float64)
+    adj[:, 0, 0] = e * i - f * h
+    adj[:, 1, 0] = f * g - d * i
+    adj[:, 2, 0] = d * h - e * g
+    adj[:, 0, 1] = c * h - b * i
+    adj[:, 1, 1] = a * i - c * g
+    adj[:, 2, 1] = b * g - a * h
+    adj[:, 0, 2] = b * f - c * e
+    adj[:, 1, 2] = c * d - a * f
+    adj[:, 2, 2] = a * e - b * d
+    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
+    return adj, det
+
+
+def inv3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched 3x3 inverse of ``A: (M, 3, 3)``: (M, 3, 3) and (M,) bool; rows with a
+    singular or ill-conditioned A (``|det| <= 1e-12 trace^3``) give NaN and False."""
+    A = np.asarray(A, np.float64)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        adj, det = _adjugate3(A)
+        scale = np.einsum("nii->n", A) ** 3
+        ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
+        out = adj / np.where(ok, det, np.nan)[:, None, None]
+    return out, ok
+
+
 def solve3(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched 3x3 solve; rows with a singular/ill-conditioned A give NaN and False."""
+    """Batched 3x3 solve ``A x = b`` (``A: (M, 3, 3)``, ``b: (M, 3)``), by the adjugate;
+    rows with a singular or ill-conditioned A give NaN and False (as :func:`inv3`)."""
+    inverse, ok = inv3(A)
     with np.errstate(invalid="ignore", over="ignore"):
-        A0 = finite(A)
-        det = np.linalg.det(A0)
-    scale = np.einsum("nii->n", A0) ** 3
-    ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.maximum(np.abs(scale), 1e-300))
-    if ok.all():  # the usual case: no masked copies (each matrix is solved on its own either way)
-        return np.linalg.solve(A, b[..., None])[..., 0], ok
-    x = np.full(b.shape, np.nan)
-    if ok.any():
-        x[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+        x = np.einsum("nij,nj->ni", inverse, b)
     return x, ok

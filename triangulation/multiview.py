@@ -63,7 +63,7 @@ from vio_core.camera import Camera
 from vio_core.checks import check_array
 from vio_core.errors import InputError, SettingsError
 
-from .batched import finite, inv2, quad2, solve3, sum_by
+from .batched import finite, inv2, inv3, quad2, solve3, sum_by
 
 # numerical floor on the largest angle between a track's rays (degrees): below it the
 # geometry is treated as degenerate whatever the stated uncertainties say
@@ -402,9 +402,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     J = Jp @ R_cw
     JtS = np.transpose(J, (0, 2, 1)) @ S_inv
     H = sum_by(t, inlier[:, None, None] * (JtS @ J), n_tracks)
-    eye = np.broadcast_to(_EYE3, H.shape)
-    Hinv_cols = [solve3(H, np.ascontiguousarray(eye[:, :, k]))[0] for k in range(3)]
-    cov_w = np.stack(Hinv_cols, axis=2)
+    cov_w = inv3(H)[0]
 
     # largest angle between inlier rays (the pair with the extreme directions)
     mean_ray = sum_by(t, np.where(inlier[:, None], rays_w, 0.0), n_tracks)
