@@ -3,7 +3,7 @@
 window (iSAM2)").
 
 Runs :func:`bench_landmarks.run_path` (whole sequence, the CLI's defaults) for the paths
-``landmarks`` (batch) and ``landmarks-isam2``, alternating, ``--repeats`` times, and prints per run:
+``landmarks-batch`` and ``landmarks-isam2``, alternating, ``--repeats`` times, and prints per run:
 keyframes, the thread CPU of ``LandmarkWindow.add_keyframe`` (mean / median / p90 ms), of the
 graph's ``refine`` (mean ms), the points stage's CPU per frame, the whole run's CPU per frame,
 AbsRel and its oracle, wrong frames (status ok, AbsRel > 2 x oracle + 0.02) and how often iSAM2
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     for _ in range(args.repeats):
         for name in args.datasets.split(","):
-            for path in ("landmarks", "landmarks-isam2"):
+            for path in ("landmarks-batch", "landmarks-isam2"):
                 print(measure(name, path, args.data), flush=True)
     return 0
 

@@ -185,7 +185,8 @@ def _vio_window() -> LandmarkSettings:
                               relative_translation_m=0.1, relative_translation_fraction=0.0,
                               absolute_on_every_keyframe=False)
     return LandmarkSettings(pose_prior=prior, multiview=MultiviewSettings(pixel_sigma_px=1.0), window_keyframes=16,
-                            match_keyframes=3, refresh_keyframes=3, keyframe_relative_sigma=0.1, max_keyframe_gap=10, restart_from_priors=False)
+                            match_keyframes=3, refresh_keyframes=3, keyframe_relative_sigma=0.1, max_keyframe_gap=10, restart_from_priors=False,
+                            solver="batch")
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from vio_core.errors import UnknownNameError
 from vio_depth.landmarks import LANDMARK_SOLVERS, LandmarkEstimator, LandmarkSettings, pose_prior_preset
+from vio_depth.vio import VioSettings
 
 from .synthetic import IdMatcher, make_scene
 from .test_window import NOISY, _errors, _Odometry, _run
@@ -109,4 +110,5 @@ def test_unknown_solver_name_raises():
         LandmarkSettings(solver="isam")
     with pytest.raises(ValueError):
         LandmarkSettings(solver="")
-    assert LandmarkSettings().solver == "batch"
+    assert LandmarkSettings().solver == "isam2"  # the points window's default since 2026-12-06
+    assert VioSettings().window.solver == "batch"  # the odometry's window keeps batch
