@@ -1,9 +1,9 @@
 """Incremental refinement of the landmark window with gtsam's iSAM2: :class:`IsamGraph`.
 
 The window's ``LandmarkSettings.solver = "isam2"`` (the default since 2026-12-06; the
-odometry's window keeps ``"batch"``, :class:`~.graph.WindowGraph`: Levenberg-Marquardt over the whole window from scratch at
-every keyframe, then ``gtsam.Marginals``). :class:`IsamGraph` has the same interface and
-keeps the factorisation between keyframes (``gtsam.ISAM2``, a Bayes tree): a keyframe's
+odometry's window keeps ``"batch"``, :class:`~.graph.WindowGraph`: Levenberg-Marquardt over
+the whole window from scratch at every keyframe, then ``gtsam.Marginals``). :class:`IsamGraph`
+has the same interface and keeps the factorisation between keyframes (``gtsam.ISAM2``, a Bayes tree): a keyframe's
 update hands iSAM2 only what changed --
 
 * the new keyframe's motion factors and initial values (and the marginal factors and gauge

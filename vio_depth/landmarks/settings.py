@@ -179,8 +179,9 @@ class LandmarkSettings:
             ``gtsam.Marginals`` (:mod:`.graph`); ``"isam2"`` (the default since 2026-12-06)
             updates gtsam's iSAM2 with the keyframe's changes only (:mod:`.isam`;
             docs/benchmarks.md "Incremental window (iSAM2)"): AbsRel within 1 % with the
-            sequence's or IMU poses for 8-20 % less window CPU ("The landmark window at 1.5 x"). The odometry's window keeps
-            ``"batch"`` (iSAM2 drifted more on the street drive under ``--poses vio``).
+            sequence's or IMU poses for 8-20 % less window CPU ("The landmark window at
+            1.5 x"). The odometry's window keeps ``"batch"`` (iSAM2 drifted more on the
+            street drive under ``--poses vio``).
     """
 
     pose_prior: PosePriorSettings | None = None
