@@ -10,8 +10,8 @@ poses, RANSAC seed 0 and the CLI's rescaler defaults (fallbacks and temporal fil
   sequence's kind of poses, ``Sequence.pose_kind``; no pairing preset), the same runner;
 * ``landmarks-isam2`` / ``landmarks-batch`` (only when asked for with ``--paths``): the same
   with ``LandmarkSettings.solver`` set (``isam2``, the incremental window of
-  :mod:`vio_depth.landmarks.isam`, is the default since 2026-12-06); ``landmarks-16``: the
-  window before that day (16 keyframes, batch).
+  :mod:`vio_depth.landmarks.isam`, is the default since 2026-12-06; ``--baseline-rev`` runs
+  the window of an earlier revision).
 
 Datasets (a missing folder is skipped; ``--data`` points at the shared data folder):
 
@@ -112,12 +112,9 @@ DATASETS = {d.name: d for d in (
     Dataset("street", "sample_sequences/street", "kitti", "sequence", 80.0),
     Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
 )}
-PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks", "landmarks-batch": "landmarks",
-         "landmarks-16": "landmarks"}
-#: landmark settings of a path beyond its points preset (``landmarks-isam2`` / ``-batch``: that
-#: solver; ``landmarks-16``: the window before 2026-12-06, 16 keyframes and the batch solver)
-PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}, "landmarks-batch": {"solver": "batch"},
-                  "landmarks-16": {"solver": "batch", "window_keyframes": 16}}
+PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks", "landmarks-batch": "landmarks"}
+#: landmark settings of a path beyond its points preset (``landmarks-isam2`` / ``-batch``: that solver)
+PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}, "landmarks-batch": {"solver": "batch"}}
 
 
 def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",

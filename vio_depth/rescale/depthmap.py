@@ -145,7 +145,7 @@ def expected_relative_error(disparity, alpha: float, beta: float, covariance, ex
     step = max(1, int(np.ceil(np.sqrt(disp.size / max_pixels))))
     d = disp[::step, ::step].astype(np.float64).ravel()
     min_m = 0.0 if max_depth is None else 1.0 / float(max_depth)
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
         m = float(alpha) * d + float(beta)
         ok = np.isfinite(m) & (m > 0) & (m >= min_m)
         d, m = d[ok], m[ok]
