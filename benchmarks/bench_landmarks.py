@@ -11,7 +11,11 @@ poses, RANSAC seed 0 and the CLI's rescaler defaults (fallbacks and temporal fil
 * ``landmarks-isam2`` / ``landmarks-batch`` (only when asked for with ``--paths``): the same
   with ``LandmarkSettings.solver`` set (``isam2``, the incremental window of
   :mod:`vio_depth.landmarks.isam`, is the default since 2026-12-06; ``--baseline-rev`` runs
-  the window of an earlier revision).
+  the window of an earlier revision);
+* ``landmarks-process`` (only when asked for): the window in a worker process
+  (``[landmarks_backend] kind = "process"``, ``lag_frames`` = ``--process-lag``, default 2): a
+  keyframe's frame no longer waits for the window's update. Its ``pts CPU ms`` and ``run CPU
+  s/fr`` leave the worker's CPU out: compare its wall-time columns.
 
 Datasets (a missing folder is skipped; ``--data`` points at the shared data folder):
 
@@ -112,22 +116,29 @@ DATASETS = {d.name: d for d in (
     Dataset("street", "sample_sequences/street", "kitti", "sequence", 80.0),
     Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
 )}
-PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks", "landmarks-batch": "landmarks"}
+PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks", "landmarks-batch": "landmarks",
+         "landmarks-process": "landmarks"}
 #: landmark settings of a path beyond its points preset (``landmarks-isam2`` / ``-batch``: that solver)
 PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}, "landmarks-batch": {"solver": "batch"}}
+#: where a path's window runs (``landmarks-process``: in a worker process, ``[landmarks_backend]``;
+#: ``lag_frames`` from ``--process-lag``)
+PATH_BACKEND = {"landmarks-process": {"kind": "process"}}
 
 
 def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",
-             edge_guard: float | None = None, guided: bool = False) -> tuple[dict, list[dict]]:
+             edge_guard: float | None = None, guided: bool = False, process_lag: int = 2) -> tuple[dict, list[dict]]:
     """One path over the first ``n`` frames: ``(metrics.json, frame records)``; ``matcher`` a
     matcher preset, ``edge_guard`` the rescaler's ``max_disparity_spread`` (``--edge-guard``) or None,
-    ``guided``: pose-guided matching (``--guided-matching``) in both paths."""
+    ``guided``: pose-guided matching (``--guided-matching``) in both paths; ``process_lag``: the
+    ``lag_frames`` of ``landmarks-process``."""
     settings = PipelineSettings.from_presets(points=PATHS[path], pairing=ds.pairing, matcher=matcher)
     overrides = {"disparity": {"source": ds.disparity}}
     if guided:
         overrides["matcher"] = {"guided": {"enabled": True}}
     if path in PATH_LANDMARKS:
         overrides["landmarks"] = PATH_LANDMARKS[path]
+    if path in PATH_BACKEND:
+        overrides["landmarks_backend"] = {**PATH_BACKEND[path], "lag_frames": process_lag}
     if edge_guard is not None:
         overrides["rescaler"] = {"max_disparity_spread": edge_guard}
     settings = PipelineSettings.from_dict(overrides, settings)
@@ -205,6 +216,8 @@ def main(argv=None) -> int:
                         help="the rescaler's max_disparity_spread, as vio-depth run --edge-guard")
     parser.add_argument("--guided", action="store_true",
                         help="pose-guided matching in both paths (--guided-matching; SIFT only)")
+    parser.add_argument("--process-lag", type=int, default=2, metavar="N",
+                        help="lag_frames of the landmarks-process path (the window in a worker process)")
     parser.add_argument("--baseline-rev", default=None, help="A/B: also run this revision's code, alternating")
     parser.add_argument("--repeats", type=int, default=1, help="A/B: runs of each side")
     parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # internal: one A/B side
@@ -236,7 +249,7 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             for path in args.paths.split(","):
                 metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard,
-                                           args.guided)
+                                           args.guided, args.process_lag)
                 print(format_row(path, metrics, frames), flush=True)
     return 0
 
@@ -254,7 +267,7 @@ def summaries(args) -> list[dict]:
         with tempfile.TemporaryDirectory() as tmp:
             for path in args.paths.split(","):
                 metrics, frames = run_path(ds, sequence, n, path, Path(tmp) / path, args.matcher, args.edge_guard,
-                                           args.guided)
+                                           args.guided, args.process_lag)
                 out.append({"dataset": name, "path": path, "frames": n,
                             "pts_ms": _mean_ms(f.get("timings", {}).get("points") for f in frames),
                             "s_median": _median(f["seconds"] for f in frames),
@@ -283,7 +296,8 @@ def ab_main(args) -> int:
     passed = ["--datasets", args.datasets, "--paths", args.paths, "--data", str(args.data), "--matcher", args.matcher,
               "--json"] + (["--frames", str(args.frames)] if args.frames else []) \
         + (["--edge-guard", str(args.edge_guard)] if args.edge_guard is not None else []) \
-        + (["--guided"] if args.guided else [])
+        + (["--guided"] if args.guided else []) \
+        + (["--process-lag", str(args.process_lag)] if "landmarks-process" in args.paths else [])
     rows = []
     with tempfile.TemporaryDirectory() as tmp, baseline_checkout(args.baseline_rev, Path(tmp) / "baseline") as base:
         for k in range(args.repeats):

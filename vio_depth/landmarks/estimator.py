@@ -17,7 +17,9 @@ features (extracted once by the caller, as the pipeline does):
    refined, and the frame's points re-read from the refined window.
 
 With a :class:`~.backend.ProcessWindow` (:class:`~.settings.WindowBackendSettings` kind
-``process``) step 3 runs in a worker process instead: the frame is answered at once from
+``process``) step 3 runs in a worker process instead (with ``start_inline``, except for the
+window's second keyframe, which starts its landmarks -- the frames of a lag would have none --
+and is inserted as inline, waiting for the worker): the frame is answered at once from
 the window as it was (its points from step 2) and the keyframe is *submitted*; the next
 frames are matched and queried against that window too, and the refined window is taken
 over ``lag_frames`` frames later (:meth:`LandmarkEstimator.land`: the caller may take it
@@ -126,16 +128,22 @@ class LandmarkEstimator:
             source (None: pose priors).
         motion_samples: with ``backend``: ``(t0, t1) -> samples`` for the worker's motion
             source between two keyframe times (seconds), or None.
+        start_inline: with ``backend``: the window's second keyframe is inserted as inline (its
+            frame waits for the worker) instead of submitted, so that the frames after it have
+            landmarks at once (a points stage: KITTI-tiny's 7 frames lost 2 to a lag of 2
+            without it). The odometry's window starts from its initialisation's keyframes
+            instead, and a static start's single keyframe is extended in the worker.
     """
 
     def __init__(self, settings: LandmarkSettings, matcher, motion_factors: MotionFactorSource | None = None,
                  backend: ProcessWindow | None = None,
                  backend_settings: WindowBackendSettings = WindowBackendSettings(),
                  motion_factory: Callable[[], MotionFactorSource] | None = None,
-                 motion_samples: Callable[[float, float], Any] | None = None):
+                 motion_samples: Callable[[float, float], Any] | None = None, start_inline: bool = False):
         self.settings = settings
         self.matcher = matcher
-        self._args = (motion_factors, backend, backend_settings, motion_factory, motion_samples)
+        self.start_inline = start_inline
+        self._args = (motion_factors, backend, backend_settings, motion_factory, motion_samples, start_inline)
         self._remote = backend
         self.backend_settings = backend_settings
         self._motion_samples = motion_samples
@@ -161,6 +169,11 @@ class LandmarkEstimator:
     def reset(self) -> None:
         """Forget everything (a new window)."""
         self.__init__(self.settings, self.matcher, *self._args)
+
+    @property
+    def in_worker(self) -> bool:
+        """Whether the window lives in a worker process (a ``backend`` was given)."""
+        return self._remote is not None
 
     @property
     def pending(self) -> int | None:
@@ -365,7 +378,7 @@ class LandmarkEstimator:
             reason = f"{points.associated} of the newest keyframe's {last_tracked} landmarks found"
         if not reason:
             return FrameLandmarks(points, False, "", n_matches, rel, frame_matches=tuple(matches), landed=landed)
-        if self._remote is not None:
+        if self._remote is not None and not (self.start_inline and len(w.keyframe_ids) < 2):
             sent = tuple(matches[: s.match_keyframes])  # the newest keyframes, queued ones first (as inline)
             kf = self._keyframe_input(frame_id, timestamp, camera, T_w_c, kp, sent)
             self._remote.submit(kf, None, self._samples(frame_id, timestamp))
@@ -386,10 +399,12 @@ class LandmarkEstimator:
                 self._last_tracked = len(self._provisional.query(camera, None, kp, frame_id=frame_id))
             return FrameLandmarks(points, False, reason, n_matches, rel, None, tuple(matches), submitted=True,
                                   landed=landed)
+        # inline -- or, in a worker with start_inline, the window's second keyframe, which starts its
+        # landmarks: the frames of a lag would have none at all, so this frame waits for it
         update = self.insert_keyframe(frame_id, timestamp, camera, T_w_c, features, tuple(matches))
         if not update.ok:
             return FrameLandmarks(points, False, "", n_matches, rel, update, tuple(matches), landed=landed)
-        points = w.query(camera, None, kp, frame_id=frame_id)
+        points = self._view.query(camera, None, kp, frame_id=frame_id)
         self._last_tracked = len(points)
         return FrameLandmarks(points, True, reason, n_matches, rel, update, tuple(matches), landed=landed)
 

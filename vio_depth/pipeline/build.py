@@ -177,10 +177,16 @@ def build_points_stage(settings: PipelineSettings, pose_source: PoseSource, matc
             return TwoViewPoints(matcher, pose_source, settings.pairing, settings.triangulation,
                                  settings.min_matches, settings.consistency)
         case PointSourceKind.LANDMARKS if isinstance(pose_source, GroundTruthPoses):
+            worker = ProcessWindow() if settings.landmarks_backend.kind == "process" else None
             return LandmarkPointsStage(
                 matcher, settings.landmarks.resolved("mocap" if sequence is None else sequence.pose_kind),
-                pose_source.uncertainty, settings.consistency)
+                pose_source.uncertainty, settings.consistency, worker, settings.landmarks_backend)
         case PointSourceKind.LANDMARKS:
+            if settings.landmarks_backend.kind != "inline":
+                raise SettingsError(f"[landmarks_backend] kind = {settings.landmarks_backend.kind!r} runs the points "
+                                    "window in a worker only with the sequence's poses (--poses gt); the "
+                                    f"{pose_source.name!r} pose source's motion factors are built in this process: "
+                                    "use kind = \"inline\" (the odometry's own window has [poses.backend])")
             # relative poses with their covariance (imu, vio) become the window's motion factors
             return SourceLandmarkPoints(matcher, pose_source, settings.landmarks)
         case PointSourceKind.VIO:

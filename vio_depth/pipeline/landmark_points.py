@@ -25,7 +25,7 @@ from triangulation import ConsistencySettings, PoseInflation, depth_pose_jacobia
 from vio_core.geometry import relative_transform
 
 from ..frame import Frame
-from ..landmarks import LandmarkEstimator, LandmarkSettings
+from ..landmarks import LandmarkEstimator, LandmarkSettings, ProcessWindow, WindowBackendSettings
 from ..poses import FramePose, FrameTwist, PoseUncertainty
 from ..rescale import shared_depth_errors
 from .result import LandmarkInfo, PointsOutcome
@@ -41,15 +41,23 @@ class LandmarkPointsStage:
         uncertainty: the stated uncertainty of the sequence's relative poses
             (:class:`~vio_depth.poses.PoseUncertainty`; exact: no test, no shared error).
         consistency: the test of the poses against the matches and the online inflation.
+        backend: a :class:`~vio_depth.landmarks.ProcessWindow` to keep the window in, or None:
+            in this process. With one, ``backend_settings`` say when a keyframe's update is
+            taken over (:class:`~vio_depth.landmarks.WindowBackendSettings`; the frames between
+            its submission and then are answered from the window as it was: the pose priors are
+            the sequence's, so the worker needs no motion source); the window's second keyframe
+            is inserted as inline, so that the frames after it have landmarks at once.
+        backend_settings: see ``backend``.
 
     Frames are numbered by their position in the stream (not their sequence index), so the
     offline backward pass, which feeds frames in reverse, is a stream like any other.
     """
 
     def __init__(self, matcher: Matcher, settings: LandmarkSettings, uncertainty: PoseUncertainty = PoseUncertainty(),
-                 consistency: ConsistencySettings = ConsistencySettings()):
+                 consistency: ConsistencySettings = ConsistencySettings(), backend: ProcessWindow | None = None,
+                 backend_settings: WindowBackendSettings = WindowBackendSettings()):
         self.matcher = matcher
-        self.estimator = LandmarkEstimator(settings, matcher)
+        self.estimator = LandmarkEstimator(settings, matcher, None, backend, backend_settings, start_inline=True)
         self.uncertainty = uncertainty
         self.consistency = consistency
         self.inflation = PoseInflation(consistency)

@@ -594,3 +594,26 @@ def test_with_provisional_landmarks_the_frames_of_the_lag_see_the_pending_keyfra
 def test_provisional_landmarks_do_not_go_with_a_queue():
     with pytest.raises(SettingsError, match="provisional_landmarks"):
         WindowBackendSettings("process", max_pending_keyframes=2, provisional_landmarks=True)
+
+
+def test_with_start_inline_the_second_keyframe_is_inserted_here_and_the_next_frames_see_landmarks(worker):
+    """``start_inline`` (the points stage's): the window's second keyframe, which starts its
+    landmarks, is inserted as inline -- its frame waits for the worker and is a keyframe with an
+    update -- so the frames of the lag after it have landmarks, which they lack without it; later
+    keyframes are submitted as before."""
+    scene = make_scene(n_frames=10, n_points=250, step_m=0.12, prior_rot_deg=0.1, prior_trans_m=0.005, seed=12)
+    lag = 3
+    seen = {}
+    for start_inline in (False, True):
+        est = LandmarkEstimator(SETTINGS, IdMatcher(), backend=worker, backend_settings=WindowBackendSettings(
+            "process", lag_frames=lag), start_inline=start_inline)
+        outs = [est.process(k, k / 30.0, scene.camera, scene.T_prior[k], scene.features[k])
+                for k in range(len(scene.T_w_c))]
+        second = next(k for k, o in enumerate(outs) if k > 0 and (o.keyframe or o.submitted))
+        assert outs[second].keyframe == start_inline and outs[second].submitted != start_inline
+        if start_inline:
+            assert outs[second].update.ok and est.window.keyframe_ids[:2] == [0, second]
+            assert any(o.submitted for o in outs[second + 1:])  # later keyframes go to the worker
+        seen[start_inline] = len(outs[second + 1].points)
+        est.land(len(scene.T_w_c), wait=True)
+    assert seen[False] == 0 < seen[True]

@@ -140,6 +140,11 @@ def test_each_points_stage_is_chosen_by_the_points_settings():
     # any other source's relative poses and their covariance become the window's motion factors
     stage = build_points_stage(PipelineSettings.from_presets(poses="imu", points="landmarks"), imu, matcher)
     assert isinstance(stage, SourceLandmarkPoints) and stage.matcher is matcher
+    # a points window in a worker takes the sequence's poses as priors; motion factors are built here
+    in_worker = PipelineSettings.from_dict({"landmarks_backend": {"kind": "process"}},
+                                           PipelineSettings.from_presets(poses="imu", points="landmarks"))
+    with pytest.raises(SettingsError, match=r"only with the sequence's poses \(--poses gt\)"):
+        build_points_stage(in_worker, imu, matcher)
     # the odometry's own landmarks: only under --poses vio
     for poses, source in (("gt", gt), ("imu", imu)):
         with pytest.raises(SettingsError, match="--points vio takes the odometry's own landmarks"):

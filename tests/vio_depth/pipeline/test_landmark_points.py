@@ -43,3 +43,34 @@ def test_a_frame_without_a_pose_gets_no_pose_not_an_exception():
     frame.T_w_c = None
     res = pipe.process(frame)
     assert res.status == FrameStatus.NO_POSE and res.depth is None
+
+
+def test_the_window_in_a_worker_process_gives_the_frames_depth_as_the_inline_one_does(tmp_path):
+    """``[landmarks_backend] kind = "process"``: keyframe updates run in a worker and are taken
+    over ``lag_frames`` later; the frames meanwhile are answered from the window as it was, so the
+    run is not the inline one bit for bit, but as metric and as complete (exact street poses)."""
+    seq = open_sequence(STREET)
+    runs = {}
+    for kind in ("inline", "process"):
+        settings = PipelineSettings.from_dict({"landmarks_backend": {"kind": kind}},
+                                              PipelineSettings.from_presets(points="landmarks"))
+        pipe = Pipeline(settings, sequence=seq)
+        assert pipe.points.estimator.in_worker == (kind == "process")
+        assert pipe.points.estimator.backend_settings.lag_frames == 2  # the points window's default
+        run_sequence(seq, pipe, tmp_path / kind, RunSettings(max_frames=16, backfill=False))
+        runs[kind] = read_frames_jsonl(tmp_path / kind / "frames.jsonl")[1]
+    inline, worker = runs["inline"], runs["process"]
+    # the window's first two keyframes are inserted as inline (they start its landmarks), later
+    # ones are submitted to the worker: chosen (a reason) but not yet in the window (keyframe false)
+    chosen = [f["frame"] for f in worker if f.get("keyframe_reason")]
+    inserted = [f["frame"] for f in worker if f.get("keyframe")]
+    assert inserted[0] == 0 and len(inserted) == 2 and inserted[1] in chosen  # (frame 0 needs no reason)
+    assert len(chosen) >= 3
+    depth_inline = [f["frame"] for f in inline if f["alpha"] is not None]
+    depth_worker = [f["frame"] for f in worker if f["alpha"] is not None]
+    assert len(depth_worker) >= len(depth_inline) - 1
+    for f in worker:
+        if f["alpha"] is not None:
+            assert f["points_rel_err_median"] < 0.03 and f["abs_rel"] < 0.05
+    assert np.mean([f["abs_rel"] for f in worker if f["alpha"] is not None]) < \
+        1.1 * np.mean([f["abs_rel"] for f in inline if f["alpha"] is not None])
