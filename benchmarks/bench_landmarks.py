@@ -15,7 +15,9 @@ poses, RANSAC seed 0 and the CLI's rescaler defaults (fallbacks and temporal fil
 * ``landmarks-process`` (only when asked for): the window in a worker process
   (``[landmarks_backend] kind = "process"``, ``lag_frames`` = ``--process-lag``, default 2): a
   keyframe's frame no longer waits for the window's update. Its ``pts CPU ms`` and ``run CPU
-  s/fr`` leave the worker's CPU out: compare its wall-time columns.
+  s/fr`` leave the worker's CPU out: compare its wall-time columns;
+* ``landmarks-provisional`` (only when asked for): the same with ``provisional_landmarks``: the
+  frames of the lag are queried against the window extended by the pending keyframe.
 
 Datasets (a missing folder is skipped; ``--data`` points at the shared data folder):
 
@@ -117,12 +119,13 @@ DATASETS = {d.name: d for d in (
     Dataset("room", "sample_sequences/room", "indoor", "sequence", 10.0),
 )}
 PATHS = {"two-view": "sfm", "landmarks": "landmarks", "landmarks-isam2": "landmarks", "landmarks-batch": "landmarks",
-         "landmarks-process": "landmarks"}
+         "landmarks-process": "landmarks", "landmarks-provisional": "landmarks"}
 #: landmark settings of a path beyond its points preset (``landmarks-isam2`` / ``-batch``: that solver)
 PATH_LANDMARKS = {"landmarks-isam2": {"solver": "isam2"}, "landmarks-batch": {"solver": "batch"}}
 #: where a path's window runs (``landmarks-process``: in a worker process, ``[landmarks_backend]``;
 #: ``lag_frames`` from ``--process-lag``)
-PATH_BACKEND = {"landmarks-process": {"kind": "process"}}
+PATH_BACKEND = {"landmarks-process": {"kind": "process"},
+                "landmarks-provisional": {"kind": "process", "provisional_landmarks": True}}
 
 
 def run_path(ds: Dataset, sequence, n: int, path: str, out: Path, matcher: str = "sift",
@@ -217,7 +220,7 @@ def main(argv=None) -> int:
     parser.add_argument("--guided", action="store_true",
                         help="pose-guided matching in both paths (--guided-matching; SIFT only)")
     parser.add_argument("--process-lag", type=int, default=2, metavar="N",
-                        help="lag_frames of the landmarks-process path (the window in a worker process)")
+                        help="lag_frames of the landmarks-process / -provisional paths (the window in a worker process)")
     parser.add_argument("--baseline-rev", default=None, help="A/B: also run this revision's code, alternating")
     parser.add_argument("--repeats", type=int, default=1, help="A/B: runs of each side")
     parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # internal: one A/B side
@@ -297,7 +300,7 @@ def ab_main(args) -> int:
               "--json"] + (["--frames", str(args.frames)] if args.frames else []) \
         + (["--edge-guard", str(args.edge_guard)] if args.edge_guard is not None else []) \
         + (["--guided"] if args.guided else []) \
-        + (["--process-lag", str(args.process_lag)] if "landmarks-process" in args.paths else [])
+        + (["--process-lag", str(args.process_lag)] if "landmarks-p" in args.paths else [])
     rows = []
     with tempfile.TemporaryDirectory() as tmp, baseline_checkout(args.baseline_rev, Path(tmp) / "baseline") as base:
         for k in range(args.repeats):
