@@ -80,9 +80,17 @@ class Pipeline:
         """The matcher that extracts every frame's features (None when no stage needs features)."""
         return self.points.matcher if self.points is not None else self._matcher
 
-    def fresh(self) -> "Pipeline":
-        """A new pipeline with the same settings, sources and matcher, and no history."""
-        return Pipeline(self.settings, self.poses, self.disparity_source, sequence=self.sequence,
+    def fresh(self, inline_window: bool = False) -> "Pipeline":
+        """A new pipeline with the same settings, sources and matcher, and no history.
+
+        ``inline_window``: its points window (``--points landmarks``) runs in this process
+        whatever ``landmarks_backend`` says -- for the offline backward pass over a few frames,
+        where a worker would only add its start (1-3 s) and a second process beside the first
+        pipeline's."""
+        settings = self.settings
+        if inline_window and settings.landmarks_backend.kind != "inline":
+            settings = replace(settings, landmarks_backend=replace(settings.landmarks_backend, kind="inline"))
+        return Pipeline(settings, self.poses, self.disparity_source, sequence=self.sequence,
                         matcher=self.matcher, imu_of=self._imu_of)
 
     # ------------------------------------------------------------------ per frame

@@ -31,9 +31,9 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
 
     The leading frames are those before the first frame with depth whose failure is about
     pairing or points (not a missing disparity). A fresh pipeline with the same settings
-    processes frames ``last .. 0`` in reverse order, where ``last`` lies ``2 * buffer_size``
-    frames beyond the last leading frame, so each leading frame meets keyframes from its
-    future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
+    (its points window inline) processes frames ``last .. 0`` in reverse order, where
+    ``last`` lies ``2 * buffer_size`` frames beyond the last leading frame, so each leading
+    frame meets keyframes from its future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
     :class:`FrameResult`); ``overlap`` prepares the frames in ``workers`` worker threads;
     ``features`` maps indices to features the forward pass extracted (not extracted again). Returns
     ``{index: (frame, FrameResult)}`` for the frames that now have depth.
@@ -46,7 +46,7 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
                                          FrameStatus.CORRUPT_IMAGE)]
     if not lead:
         return {}
-    backward = pipeline.fresh()
+    backward = pipeline.fresh(inline_window=True)  # a few frames, offline: a worker would only add its start
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
     features = {} if features is None else features

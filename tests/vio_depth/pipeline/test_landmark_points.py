@@ -58,6 +58,8 @@ def test_the_window_in_a_worker_process_gives_the_frames_depth_as_the_inline_one
         assert pipe.points.estimator.in_worker == (kind == "process")
         assert pipe.points.estimator.backend_settings.lag_frames == 2  # the points window's default
         run_sequence(seq, pipe, tmp_path / kind, RunSettings(max_frames=16, backfill=False))
+        # the offline backward pass's pipeline keeps its window here: a worker would only add its start
+        assert not pipe.fresh(inline_window=True).points.estimator.in_worker
         runs[kind] = read_frames_jsonl(tmp_path / kind / "frames.jsonl")[1]
     inline, worker = runs["inline"], runs["process"]
     # the window's first two keyframes are inserted as inline (they start its landmarks), later
