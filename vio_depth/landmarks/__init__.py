@@ -28,6 +28,7 @@ from .resection import PoseRefinement, refine_pose
 from .settings import (
     LANDMARK_SOLVERS,
     POSE_PRIOR_PRESETS,
+    POINTS_WINDOW_BACKEND,
     WINDOW_BACKENDS,
     LandmarkSettings,
     PosePriorSettings,
@@ -42,6 +43,7 @@ from .window import LandmarkWindow
 __all__ = [
     "LANDMARK_SOLVERS",
     "POSE_PRIOR_PRESETS",
+    "POINTS_WINDOW_BACKEND",
     "WINDOW_BACKENDS",
     "FrameLandmarks",
     "FrameMatches",

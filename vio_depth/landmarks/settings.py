@@ -315,3 +315,10 @@ class WindowBackendSettings:
         if self.provisional_landmarks and self.max_pending_keyframes > 1:
             raise SettingsError("window backend: provisional_landmarks with max_pending_keyframes > 1 chains "
                                 "unrefined keyframes (the street sample's scale drifted 10-17 %); use one of them")
+
+
+#: where the points window's updates run by default (``PipelineSettings.landmarks_backend``):
+#: inline; with ``kind = "process"``, taken over 2 frames later (3 left the street sample 60
+#: points a frame instead of 72 and AbsRel 0.0209 instead of 0.0198; docs/benchmarks.md "The
+#: points window in a worker process")
+POINTS_WINDOW_BACKEND = WindowBackendSettings(lag_frames=2)

@@ -25,7 +25,7 @@ from triangulation import ConsistencySettings, PoseInflation, depth_pose_jacobia
 from vio_core.geometry import relative_transform
 
 from ..frame import Frame
-from ..landmarks import LandmarkEstimator, LandmarkSettings, ProcessWindow, WindowBackendSettings
+from ..landmarks import POINTS_WINDOW_BACKEND, LandmarkEstimator, LandmarkSettings, ProcessWindow, WindowBackendSettings
 from ..poses import FramePose, FrameTwist, PoseUncertainty
 from ..rescale import shared_depth_errors
 from .result import LandmarkInfo, PointsOutcome
@@ -55,7 +55,7 @@ class LandmarkPointsStage:
 
     def __init__(self, matcher: Matcher, settings: LandmarkSettings, uncertainty: PoseUncertainty = PoseUncertainty(),
                  consistency: ConsistencySettings = ConsistencySettings(), backend: ProcessWindow | None = None,
-                 backend_settings: WindowBackendSettings = WindowBackendSettings()):
+                 backend_settings: WindowBackendSettings = POINTS_WINDOW_BACKEND):
         self.matcher = matcher
         self.estimator = LandmarkEstimator(settings, matcher, None, backend, backend_settings, start_inline=True)
         self.uncertainty = uncertainty

@@ -27,7 +27,7 @@ from vio_core.settings import Presets, override, to_plain
 
 from ..disparity import DisparitySettings
 from ..keyframes import PAIRING_PRESETS, PairingSettings
-from ..landmarks import LandmarkSettings, WindowBackendSettings
+from ..landmarks import POINTS_WINDOW_BACKEND, LandmarkSettings, WindowBackendSettings
 from ..poses import GroundTruthPoseSettings, ImuPoseSettings
 from ..rescale import RESCALER_PRESETS, RescalerSettings
 from .point_source import PointSourceSpec, parse_points_spec
@@ -139,13 +139,11 @@ class PipelineSettings:
             ``inline`` (the default, reproducible bit for bit) or ``process``, a worker process
             beside the next frames, so that a keyframe's frame does not wait for the window's
             refinement; that frame and the next ``lag_frames`` - 1 are answered from the window
-            as it was. ``lag_frames`` 2 by default: on the street sample with klt a lag of 3 left
-            60 points a frame instead of 72 and AbsRel 0.0209 instead of 0.0198
-            (docs/benchmarks.md "The points window in a worker process"). Only its ``kind``,
-            ``lag_frames``, ``apply_when_ready``,
-            ``max_pending_keyframes`` and ``provisional_landmarks`` apply here (the others
-            concern the odometry's start), and ``process`` only with the sequence's poses
-            (``poses = "gt"``). The odometry's own window has ``poses.backend``.
+            as it was; ``lag_frames`` 2 by default (:data:`~vio_depth.landmarks.POINTS_WINDOW_BACKEND`).
+            Only its ``kind``, ``lag_frames``, ``apply_when_ready``, ``max_pending_keyframes`` and
+            ``provisional_landmarks`` apply here (the others concern the odometry's start), and
+            ``process`` only with the sequence's poses (``poses = "gt"``). The odometry's own
+            window has ``poses.backend``.
         disparity: where the disparity comes from (the sequence's own, files, SIMULATED, a model).
         min_matches: fewer matches than this in a pair -> it is not triangulated.
         consistency: how each pair's stated pose is tested against its matches, and its
@@ -160,7 +158,7 @@ class PipelineSettings:
     rescaler: RescalerSettings = field(default_factory=RescalerSettings)
     points: PointSourceSpec = field(default_factory=PointSourceSpec)
     landmarks: LandmarkSettings = field(default_factory=LandmarkSettings)
-    landmarks_backend: WindowBackendSettings = field(default_factory=lambda: WindowBackendSettings(lag_frames=2))
+    landmarks_backend: WindowBackendSettings = POINTS_WINDOW_BACKEND
     disparity: DisparitySettings = field(default_factory=DisparitySettings)
     min_matches: int = 20
     consistency: ConsistencySettings = field(default_factory=ConsistencySettings)
