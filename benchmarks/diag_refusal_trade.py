@@ -19,26 +19,22 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+for path in (REPO, REPO / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
 
+from bench_vio import wrong_frames  # noqa: E402  (the benchmarks' one definition of a wrong frame)
 from vio_depth.run import read_frames_jsonl  # noqa: E402
-
-
-def is_wrong(record: dict) -> bool:
-    """Written with AbsRel > 2 x the frame's oracle AbsRel + 0.02."""
-    return (record.get("alpha") is not None and record.get("abs_rel") is not None
-            and record.get("oracle_abs_rel") is not None
-            and record["abs_rel"] > 2 * record["oracle_abs_rel"] + 0.02)
 
 
 def trade_row(name: str, records: list[dict], bounds: list[float]) -> str:
     written = [r for r in records if r.get("alpha") is not None]
-    wrong = [r for r in written if is_wrong(r)]
+    bad = set(wrong_frames(records))
+    wrong = [r for r in written if r["frame"] in bad]
     cells = [name, f"{len(written)}/{len(records)}", str(len(wrong))]
     for bound in bounds:
         kept = [r for r in written if (r.get("predicted_error") or 0.0) <= bound]
-        cells.append(f"{len(kept)}, {sum(map(is_wrong, kept))}")
+        cells.append(f"{len(kept)}, {sum(r['frame'] in bad for r in kept)}")
     cells.append(", ".join(f"{r['frame']} ({r['predicted_error']:.3f})" for r in wrong) or "-")
     return "| " + " | ".join(cells) + " |"
 
