@@ -31,10 +31,14 @@ class FrameBridges:
 
     Args:
         factors: the odometry's IMU factors (states of the window's keyframes, prediction).
+        every_update: :meth:`refresh` poses every bridged frame again (True), or only the frames
+            of keyframe pairs it has not posed yet (False: each frame is bridged once, at the
+            first update that has both its keyframes; ``VioSettings.bridge_every_update``).
     """
 
-    def __init__(self, factors: ImuFactors):
+    def __init__(self, factors: ImuFactors, every_update: bool = True):
         self.factors = factors
+        self.every_update = bool(every_update)
         # frames posed again after every window update: (frame, t, keyframe before, keyframe after),
         # and those still waiting for the keyframe after: (frame, t, keyframe before)
         self._bridged: list[tuple[int, float, int, int]] = []
@@ -43,6 +47,8 @@ class FrameBridges:
         # and the motion noise, kept while the frames are bridged
         self._pims: dict = {}
         self._motion_cov: dict = {}
+        # (every_update False) the keyframe pairs whose frames were posed
+        self._done: set[tuple[int, int]] = set()
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
@@ -50,7 +56,7 @@ class FrameBridges:
         after the newest keyframe (offered while the initialisation ran in a worker process)
         follows that keyframe (:meth:`add`)."""
         self._bridged, self._unbridged = [], []
-        self._pims, self._motion_cov = {}, {}
+        self._pims, self._motion_cov, self._done = {}, {}, set()
         for f, t in frames:
             before = [k for k, kt in keyframes if kt <= t]
             after = [k for k, kt in keyframes if kt > t]
@@ -79,13 +85,15 @@ class FrameBridges:
 
         The frames of one keyframe pair are posed together (:meth:`_poses`): after every window
         update all of them are, some 60 frames for a 10-keyframe window, and one frame at a time
-        this took 90 ms per update on the 752x564 ASL loop (2-core machine)."""
+        this took 90 ms per update on the 752x564 ASL loop (2-core machine). Without
+        ``every_update`` only the pairs not posed before are."""
         ids = set(window.keyframe_ids)
         est = window.estimate
         keep = [(f, t, a, b) for f, t, a, b in self._bridged if a in ids and b in ids]
         groups: dict[tuple[int, int], list[tuple[int, float]]] = {}
         for f, t, a, b in keep:
-            groups.setdefault((a, b), []).append((f, t))
+            if self.every_update or (a, b) not in self._done:
+                groups.setdefault((a, b), []).append((f, t))
         posed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for (a, b), frames in groups.items():
             posed.update(self._poses(window, est, times, a, b, frames))
@@ -93,6 +101,8 @@ class FrameBridges:
             if f in posed:  # anchored to the later keyframe, which stays in the window longer
                 history.add_frame(f, session, b, *posed[f])
         self._bridged = keep
+        if not self.every_update:
+            self._done = (self._done | set(groups)) & {(a, b) for _, _, a, b in keep}
         starts = {times[a] for _, _, a, _ in keep}
         ends = {times[b] for _, _, _, b in keep}
         self._pims = {k: v for k, v in self._pims.items() if k[0] in starts}

@@ -111,7 +111,7 @@ class VioEstimator:
         #: the landmark window's last update and the last initialisation (diagnostics)
         self.last_update = None
         self.last_init: InitResult | None = None
-        self.bridges = FrameBridges(self.factors)
+        self.bridges = FrameBridges(self.factors, settings.bridge_every_update)
         #: the landmarks each tracked frame saw (``--points vio`` reads them: :meth:`frame_landmarks`)
         self.landmark_log = LandmarkLog(min(settings.history_frames, KEPT_FRAMES))
         #: the worker process of the landmark window (``settings.backend.kind`` "process"), or None

@@ -229,6 +229,12 @@ class VioSettings:
             (:class:`~vio_depth.landmarks.WindowBackendSettings`): ``inline`` (default,
             reproducible) or ``process`` (a worker process beside the tracking, for camera-rate
             streaming; docs/vio.md).
+        bridge_every_update: the frames between two keyframes are posed again by the IMU
+            between them (a bridge, :mod:`vio_depth.vio.bridge`) after every window update
+            while both keyframes are in it (True, the default), or once, after the first
+            update that has both (False: ``vio_realtime``; afterwards they follow the later
+            keyframe as it moves). Every update re-poses some 60 frames of a 16-keyframe
+            window: 34 ms a keyframe on the 752x564 ASL loop (docs/benchmarks.md).
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)
@@ -251,6 +257,7 @@ class VioSettings:
     history_frames: int = 20000
     rest: RestSettings = field(default_factory=RestSettings)
     backend: WindowBackendSettings = field(default_factory=WindowBackendSettings)
+    bridge_every_update: bool = True
 
     def __post_init__(self):
         require_positive(self, "velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m",
