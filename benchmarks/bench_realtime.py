@@ -85,11 +85,19 @@ odometry's own landmarks and covariances, nothing matched twice; issue 24, item 
     python benchmarks/bench_realtime.py --datasets euroc,kitti_tiny --max-frames 40 --no-baselines
     python benchmarks/bench_realtime.py --datasets asl_room,euroc --matchers klt --vio-points vio \
         --vio-backends inline,process --vio-lag 6 --modes realtime,afap
+    python benchmarks/bench_realtime.py --datasets asl_loop --matchers klt --vio-backends process --vio-lag 3 \
+        --no-baselines --vio-set "" --vio-set "solver='isam2';bridge_every_update=False"   # settings A/B
+
+``--vio-set`` (repeatable, one row set each) replaces fields of the odometry's settings
+(``VioSettings``) or of its window (``LandmarkSettings``) in the vio rows; a row with any is
+not the default row of the accuracy comparison.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import itertools
 import os
 import platform
@@ -111,8 +119,9 @@ from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error  # noqa: E402
 from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
-from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
+from vio_depth.landmarks import LandmarkSettings, WindowBackendSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
+from vio_depth.vio import VioSettings  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
 
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_realtime"
@@ -125,6 +134,8 @@ PREFETCH_THREADS, PREFETCH_WINDOW = 2, 3
 ACCURACY_MAX_DEPTH_M = 10.0
 #: issue 24: the fast configuration's ATE within 10 % and AbsRel within 5 % of the default's
 ATE_TOLERANCE, ABS_REL_TOLERANCE = 0.10, 0.05
+#: ``--vio-set``'s fields of the odometry itself (the others are its window's)
+VIO_FIELDS = frozenset(f.name for f in dataclasses.fields(VioSettings))
 
 
 # ----------------------------------------------------------------------------- replay and its accounting
@@ -228,9 +239,14 @@ class StreamRunner:
 
     def __init__(self, ds: data.StreamData, prefetch: int = 0, matcher: str = "sift",
                  edge_guard: float | None = None, points: str | None = None,
-                 backend: WindowBackendSettings | None = None):
+                 backend: WindowBackendSettings | None = None, window: dict | None = None):
         self.ds = ds
         settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher, points=points)
+        if window and ds.poses == "vio":  # --vio-set: fields of the odometry or of its landmark window
+            vio = settings.poses
+            own = {k: v for k, v in window.items() if k in VIO_FIELDS}
+            vio = replace(vio, window=replace(vio.window, **{k: v for k, v in window.items() if k not in own}), **own)
+            settings = replace(settings, poses=vio)
         if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
             settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
         if backend is not None:  # where the odometry's window updates run (VioSettings.backend)
@@ -450,13 +466,15 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
 
 def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
                  prefetch: bool = False, matcher: str = "sift", edge_guard: float | None = None,
-                 points: str | None = None, backend: WindowBackendSettings | None = None) -> Row:
+                 points: str | None = None, backend: WindowBackendSettings | None = None,
+                 window: dict | None = None) -> Row:
+    window = window if ds.poses == "vio" else None
     if warmup:
-        warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend)
+        warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend, window)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend)
+    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend, window)
     # (the odometry, and its worker process, start with the first frame: the worker's start-up,
     # beside the initialisation's frames, is inside the timed row)
     process_backend = backend is not None and backend.kind == "process"
@@ -475,7 +493,8 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
         label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "") + (
             f", queue {backend.max_pending_keyframes}" if backend.max_pending_keyframes > 1 else "") + (
             f", catch-up {backend.catch_up_keyframes}") + (", provisional" if backend.provisional_landmarks else "")
-    default = matcher == "sift" and points is None and not process_backend
+    label += "".join(f", {k}={v}" for k, v in (window or {}).items())
+    default = matcher == "sift" and points is None and not process_backend and not window
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
                peak_rss_mib(), dict(runner.statuses), label, list(runner.posed), runner.ate_m(),
                float(np.mean(runner.abs_rel)) if runner.abs_rel else None, default)
@@ -485,6 +504,25 @@ def baseline_row(ds: data.StreamData, baseline) -> Row:
     reset_peak_rss()
     result = run_baseline(ds, baseline)
     return Row(ds.name, ds.size, baseline.name, "afap", len(ds), result, rss_mib=peak_rss_mib())
+
+
+def parse_window(text: str) -> dict:
+    """``--vio-set``'s ``"key=value;key=value"`` as a dict of :class:`VioSettings` or
+    :class:`LandmarkSettings` fields (values as Python literals), checked against the settings'
+    fields; ``""``: no change."""
+    fields = VIO_FIELDS | {f.name for f in dataclasses.fields(LandmarkSettings)}
+    out = {}
+    for item in (t for t in text.split(";") if t.strip()):
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in fields or key in ("window", "backend"):
+            raise ValueError(f"--vio-set: {item!r} is not KEY=VALUE with KEY a VioSettings or LandmarkSettings "
+                             f"field (not window or backend: --vio-backends, --vio-lag)")
+        try:
+            out[key] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            raise ValueError(f"--vio-set: {item!r}: the value is not a Python literal") from None
+    return out
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:
@@ -595,9 +633,17 @@ def main(argv=None) -> int:
                              "extended by the pending keyframe (provisional landmarks)")
     parser.add_argument("--vio-when-ready", action="store_true",
                         help="process backend: take an update over as soon as it is ready (timing-dependent)")
+    parser.add_argument("--vio-set", action="append", default=None, metavar="KEY=VALUE;...",
+                        help="one row set per use: fields of the odometry (VioSettings) or of its landmark window "
+                             "(LandmarkSettings) replaced, e.g. \"solver='isam2';bridge_every_update=False\"; "
+                             "'' = the preset's")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
+    try:
+        windows = [parse_window(w) for w in (args.vio_set or [""])]
+    except ValueError as exc:
+        parser.error(str(exc))
     names = [n for n in args.datasets.split(",") if n]
     unknown = [n for n in names if n not in data.DATASETS]
     modes = [m for m in args.modes.split(",") if m]
@@ -641,14 +687,15 @@ def main(argv=None) -> int:
               f"{ds.pairing}): {ds.description}", flush=True)
         sources = vio_points if ds.poses == "vio" else [None]
         where = backends if ds.poses == "vio" else [None]
-        for matcher, points, backend, mode in itertools.product(matchers, sources, where, modes):
+        for matcher, points, backend, window, mode in itertools.product(matchers, sources, where, windows, modes):
             if mode == "prefetch" and matcher == "klt":
                 continue  # a tracker follows the previous frame: nothing to extract ahead
             row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
                                prefetch=mode == "prefetch", matcher=matcher,
                                edge_guard=args.klt_edge_guard if matcher == "klt" else None,
                                points=None if points == "sfm" else points,
-                               backend=None if backend is None or backend.kind == "inline" else backend)
+                               backend=None if backend is None or backend.kind == "inline" else backend,
+                               window=window)
             rows.append(row)
             print(f"  {row.matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:

@@ -24,6 +24,7 @@ i.e. ``LandmarkSettings``, or else of ``VioSettings``).
     python benchmarks/bench_vio_online.py --matcher klt --set lm_min_error_decrease=1e-5
     python benchmarks/bench_vio_online.py --sequences room,street --set window_keyframes=12 --set ba_max_landmarks=400
     python benchmarks/bench_vio_online.py --matcher klt --set "backend=('process', 6)"   # the window in a worker
+    python benchmarks/bench_vio_online.py --set "backend=('process', 3); solver='isam2'"  # two changes, one run
 """
 
 from __future__ import annotations
@@ -135,14 +136,21 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
             "poses_ms": 1000 * float(np.mean(poses_s)), "total_ms": 1000 * float(np.mean(total_s))}
 
 
-def parse_change(text: str) -> tuple[str, object]:
-    key, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"--set wants FIELD=VALUE, got {text!r}")
-    try:
-        return key.strip(), ast.literal_eval(value.strip())
-    except (ValueError, SyntaxError):
-        raise argparse.ArgumentTypeError(f"--set {text!r}: the value is not a Python literal") from None
+def parse_change(text: str) -> tuple[str, dict]:
+    """``--set``'s ``FIELD=VALUE`` (or several, ``;``-separated: one run with all of them) as
+    ``(text, {field: value})``."""
+    changes = {}
+    for item in (t for t in text.split(";") if t.strip()):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise argparse.ArgumentTypeError(f"--set wants FIELD=VALUE[;FIELD=VALUE...], got {text!r}")
+        try:
+            changes[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            raise argparse.ArgumentTypeError(f"--set {item!r}: the value is not a Python literal") from None
+    if not changes:
+        raise argparse.ArgumentTypeError("--set: no FIELD=VALUE given")
+    return text, changes
 
 
 def main(argv=None) -> int:
@@ -150,14 +158,15 @@ def main(argv=None) -> int:
     parser.add_argument("--sequences", default=",".join(SEQUENCES), help=f"comma-separated, of {', '.join(SEQUENCES)}")
     parser.add_argument("--matcher", default="klt", help="the pipeline's --matcher preset (default klt)")
     parser.add_argument("--set", dest="changes", action="append", type=parse_change, default=[],
-                        help="FIELD=VALUE: one more run with this change (repeat --set for more runs)")
+                        help="FIELD=VALUE[;FIELD=VALUE...]: one more run with these changes (repeat --set for "
+                             "more runs)")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
     names = [n for n in args.sequences.split(",") if n]
     unknown = [n for n in names if n not in SEQUENCES]
     if unknown or not names:
         parser.error(f"unknown sequence(s) {', '.join(unknown) or '(none)'} (valid: {', '.join(SEQUENCES)})")
-    variants = [("defaults (baseline)", {})] + [(f"{k}={v!r}", {k: v}) for k, v in args.changes]
+    variants = [("defaults (baseline)", {})] + list(args.changes)
     for _, changes in variants:
         try:
             with_changes(PipelineSettings.from_presets(poses="vio"), changes)

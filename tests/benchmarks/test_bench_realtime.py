@@ -79,3 +79,14 @@ def test_a_fast_configuration_is_judged_against_the_default_row_of_the_same_run(
     assert not held and "AbsRel 1.06 x" in text and "beyond +5%" in text
     text, held = br.accuracy_against_default(_vio_row(False, 0.0100, 0.0212, "klt"), [])
     assert held and "no default row" in text
+
+
+def test_vio_set_replaces_odometry_and_window_fields_and_refuses_others():
+    """``--vio-set``: fields of VioSettings and of its window, values as Python literals; an unknown
+    field, ``window``/``backend`` themselves or a value that is not a literal is an error."""
+    changes = br.parse_window("solver='isam2'; bridge_every_update=False;ba_max_landmarks=400")
+    assert changes == {"solver": "isam2", "bridge_every_update": False, "ba_max_landmarks": 400}
+    assert br.parse_window("") == {}
+    for bad in ("foo=1", "backend='process'", "solver=isam2", "solver"):
+        with pytest.raises(ValueError, match="--vio-set"):
+            br.parse_window(bad)
