@@ -17,7 +17,7 @@ Every invalid value raises :class:`~vio_core.errors.SettingsError` naming its ke
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 from matchers import MATCHER_PRESETS, KltSettings, LearnedMatcherSettings, MatcherSettings, SiftSettings
@@ -42,22 +42,25 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md) and ``vio_realtime``
 #: (``vio`` with its window's keyframe updates in a worker process, taken over 3 frames later,
 #: and KLT tracks unless a matcher is named: :func:`default_matcher_preset`; docs/benchmarks.md
-#: "vio_realtime, 2026-12-06"). They live here, above
+#: "vio_realtime, 2026-12-06"; since 2026-12-07 its window is refined by iSAM2 and the frames
+#: between keyframes are bridged once, not after every update: docs/benchmarks.md "vio_realtime's
+#: worker: iSAM2 and bridges once, 2026-12-07"). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
     "imu": ImuPoseSettings(),
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
     "vio": VioSettings(),
-    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=3)),
+    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=3),
+                                window=replace(VioSettings().window, solver="isam2"), bridge_every_update=False),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",
     "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
                     "(calibrated on EuRoC V1_01)",
     "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
-    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 3 frames later), KLT tracks; "
-                    "drifts more outdoors, fewer frames get depth",
+    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 3 frames later, iSAM2), KLT "
+                    "tracks; drifts more outdoors, fewer frames get depth",
 })
 
 

@@ -1,5 +1,7 @@
 """The builder: each pose source and points stage is chosen by explicit settings, in one place."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -53,8 +55,13 @@ def _frame(index: int, t: float) -> Frame:
 def test_each_pose_preset_builds_its_source_from_its_settings_type():
     assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio", "vio_realtime"] and POSE_PRESETS.default == "gt"
     assert POSE_PRESETS["vio"] == VioSettings() and POSE_PRESETS["imu"] == ImuPoseSettings()
-    realtime = POSE_PRESETS["vio_realtime"].backend
-    assert realtime.kind == "process" and realtime.lag_frames == 3
+    realtime = POSE_PRESETS["vio_realtime"]
+    assert realtime.backend.kind == "process" and realtime.backend.lag_frames == 3
+    # and only that, iSAM2 and bridges once (docs/benchmarks.md "vio_realtime's worker ...")
+    assert realtime.window.solver == "isam2" and VioSettings().window.solver == "batch"
+    assert realtime.bridge_every_update is False and VioSettings().bridge_every_update is True
+    assert replace(realtime, backend=VioSettings().backend, window=VioSettings().window,
+                   bridge_every_update=True) == VioSettings()
     seq = _Sequence(_imu())
     gt = build_pose_stage("gt", seq)
     assert isinstance(gt.source, GroundTruthPoses) and gt.tracker is None
