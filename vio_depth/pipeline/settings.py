@@ -43,8 +43,9 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: (``vio`` with its window's keyframe updates in a worker process, taken over 3 frames later,
 #: and KLT tracks unless a matcher is named: :func:`default_matcher_preset`; docs/benchmarks.md
 #: "vio_realtime, 2026-12-06"; since 2026-12-07 its window is refined by iSAM2 and the frames
-#: between keyframes are bridged once, not after every update: docs/benchmarks.md "vio_realtime's
-#: worker: iSAM2 and bridges once, 2026-12-07"). They live here, above
+#: between keyframes are bridged again only when the window learnt their keyframe pair better,
+#: not after every update: docs/benchmarks.md "vio_realtime's worker: iSAM2, and bridges only
+#: when learnt better"). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),

@@ -26,14 +26,30 @@ from .imu_factors import ImuFactors
 _REINTEGRATE = (0.05, 0.005)
 
 
+#: (``every_update`` False) a keyframe pair's frames are bridged again once the window knows the
+#: pair's relative rotation or translation this much better (1-sigma) than when they were
+#: bridged: a stale bridge with its stale covariance stays a consistent, only less certain,
+#: estimate. Bridged once and never again, the street sample's frames 15-19 (bridged just after
+#: the start, the scale 3 % off) kept relative poses 52-96 mm off (eager: 6-17 mm) and its
+#: offline backward pass gave 2 fewer frames depth (docs/benchmarks.md "vio_realtime's worker:
+#: iSAM2, and bridges only when learnt better")
+RE_BRIDGE_SHRINK = 0.8
+
+
+def _pair_sigmas(w: LandmarkWindow, a: int, b: int) -> np.ndarray:
+    """(2,) 1-sigma of keyframes ``a`` and ``b``'s relative rotation (rad) and translation (m) in ``w``."""
+    C = PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
+    return np.sqrt(np.maximum([np.trace(C[:3, :3]), np.trace(C[3:, 3:])], 0.0))
+
+
 class FrameBridges:
     """The in-between frames of one session and their bridges (module docstring).
 
     Args:
         factors: the odometry's IMU factors (states of the window's keyframes, prediction).
         every_update: :meth:`refresh` poses every bridged frame again (True), or only the frames
-            of keyframe pairs it has not posed yet (False: each frame is bridged once, at the
-            first update that has both its keyframes; ``VioSettings.bridge_every_update``).
+            of keyframe pairs not posed yet or whose relative pose the window has learnt better
+            since (False: ``VioSettings.bridge_every_update``; :data:`RE_BRIDGE_SHRINK`).
     """
 
     def __init__(self, factors: ImuFactors, every_update: bool = True):
@@ -47,8 +63,8 @@ class FrameBridges:
         # and the motion noise, kept while the frames are bridged
         self._pims: dict = {}
         self._motion_cov: dict = {}
-        # (every_update False) the keyframe pairs whose frames were posed
-        self._done: set[tuple[int, int]] = set()
+        # (every_update False) the keyframe pairs whose frames were posed: their sigmas then
+        self._done: dict[tuple[int, int], np.ndarray] = {}
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
@@ -56,7 +72,7 @@ class FrameBridges:
         after the newest keyframe (offered while the initialisation ran in a worker process)
         follows that keyframe (:meth:`add`)."""
         self._bridged, self._unbridged = [], []
-        self._pims, self._motion_cov, self._done = {}, {}, set()
+        self._pims, self._motion_cov, self._done = {}, {}, {}
         for f, t in frames:
             before = [k for k, kt in keyframes if kt <= t]
             after = [k for k, kt in keyframes if kt > t]
@@ -86,14 +102,18 @@ class FrameBridges:
         The frames of one keyframe pair are posed together (:meth:`_poses`): after every window
         update all of them are, some 60 frames for a 10-keyframe window, and one frame at a time
         this took 90 ms per update on the 752x564 ASL loop (2-core machine). Without
-        ``every_update`` only the pairs not posed before are."""
+        ``every_update`` only the pairs not posed before or learnt better since are."""
         ids = set(window.keyframe_ids)
         est = window.estimate
         keep = [(f, t, a, b) for f, t, a, b in self._bridged if a in ids and b in ids]
         groups: dict[tuple[int, int], list[tuple[int, float]]] = {}
         for f, t, a, b in keep:
-            if self.every_update or (a, b) not in self._done:
-                groups.setdefault((a, b), []).append((f, t))
+            groups.setdefault((a, b), []).append((f, t))
+        sigmas = {}
+        if not self.every_update:
+            sigmas = {g: _pair_sigmas(window, *g) for g in groups}
+            groups = {g: frames for g, frames in groups.items()
+                      if g not in self._done or np.any(sigmas[g] < RE_BRIDGE_SHRINK * self._done[g])}
         posed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for (a, b), frames in groups.items():
             posed.update(self._poses(window, est, times, a, b, frames))
@@ -101,8 +121,10 @@ class FrameBridges:
             if f in posed:  # anchored to the later keyframe, which stays in the window longer
                 history.add_frame(f, session, b, *posed[f])
         self._bridged = keep
-        if not self.every_update:
-            self._done = (self._done | set(groups)) & {(a, b) for _, _, a, b in keep}
+        if not self.every_update:  # a pair is done once every frame of it has its bridge (a prediction
+            # that failed, e.g. for want of IMU samples, is tried again at the next update)
+            self._done.update({g: sigmas[g] for g, frames in groups.items() if all(f in posed for f, _ in frames)})
+            self._done = {g: v for g, v in self._done.items() if g in sigmas}
         starts = {times[a] for _, _, a, _ in keep}
         ends = {times[b] for _, _, _, b in keep}
         self._pims = {k: v for k, v in self._pims.items() if k[0] in starts}

@@ -231,10 +231,12 @@ class VioSettings:
             streaming; docs/vio.md).
         bridge_every_update: the frames between two keyframes are posed again by the IMU
             between them (a bridge, :mod:`vio_depth.vio.bridge`) after every window update
-            while both keyframes are in it (True, the default), or once, after the first
-            update that has both (False: ``vio_realtime``; afterwards they follow the later
-            keyframe as it moves). Every update re-poses some 60 frames of a 16-keyframe
-            window: 34 ms a keyframe on the 752x564 ASL loop (docs/benchmarks.md).
+            while both keyframes are in it (True, the default), or only when the pair is new
+            and once the window knows the pair's relative pose 20 % better than when it was
+            last bridged (False: ``vio_realtime``; meanwhile they follow the later keyframe as
+            it moves). The eager refresh re-poses some 60 frames of a 16-keyframe window at
+            every update: 33 ms a keyframe on the 752x564 ASL loop, 14 ms without it
+            (docs/benchmarks.md "vio_realtime's worker").
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)

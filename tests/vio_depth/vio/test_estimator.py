@@ -4,6 +4,7 @@ and that the frames' own poses are never read."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
@@ -89,13 +90,15 @@ def test_relative_pose_covariance_is_consistent():
     assert not lo < overconfident < hi, (lo, overconfident, hi)
 
 
-def test_frames_between_keyframes_bridged_once(moving, monkeypatch):
-    """``bridge_every_update=False`` (``vio_realtime``): each keyframe pair's frames are posed by
-    the IMU bridge exactly once (the eager default poses them after every update while both
-    keyframes are in the window); every frame still gets a pose, the initialisation's too, and the
-    live poses are the same. The history moves from the eager one's by less than 0.2 % of the path
-    (measured 0.14 %: the initialisation's first frames, bridged while the window was young), and
-    its error against the truth is within 10 % of the eager one's (measured 2.0 vs 2.3 mm)."""
+def test_frames_between_keyframes_bridged_again_only_when_learnt_better(moving, monkeypatch):
+    """``bridge_every_update=False`` (``vio_realtime``): a keyframe pair's frames are posed by the
+    IMU bridge when the pair is new and again only once the window knows the pair's relative pose
+    better (RE_BRIDGE_SHRINK), not after every update as by default: under half the bridges
+    (measured 42 against 110); the pairs bridged while the window was young are bridged again
+    (bridged only once, street frames 15-19 kept a 3 % scale error). Every frame still gets a
+    pose, the initialisation's too, and the live poses are the same. The history moves from the
+    eager one's by less than 0.1 % of the path (measured 0.03 %), its error against the truth
+    within 10 % of the eager one's."""
     scene, eager, eager_out = moving
     posed: list[tuple[int, int]] = []
     poses = FrameBridges._poses
@@ -105,10 +108,13 @@ def test_frames_between_keyframes_bridged_once(moving, monkeypatch):
         return poses(self, w, est, times, a, b, frames)
 
     monkeypatch.setattr(FrameBridges, "_poses", count)
+    _run(scene)  # the eager default, counted the same way
+    n_eager = len(posed)
+    posed.clear()
     once, once_out = _run(scene, replace(SETTINGS, bridge_every_update=False))
-    assert posed and len(posed) == len(set(posed)), posed
-    _run(scene)  # the eager default, counted the same way: pairs posed again and again
-    assert len(posed) > 3 * len(set(posed))
+    counts = Counter(posed)
+    assert len(posed) < 0.5 * n_eager
+    assert max(counts.values()) >= 2 and counts[posed[0]] >= 2  # the first pair, bridged at the start: again
     for a, b in zip(eager_out, once_out):
         assert a.status == b.status and (a.T_w_c is None) == (b.T_w_c is None)
         if a.T_w_c is not None:
@@ -117,7 +123,7 @@ def test_frames_between_keyframes_bridged_once(moving, monkeypatch):
     assert len(idx) == len(scene.frames)
     assert ate.rmse < 1.1 * _ate(eager, scene)[0].rmse
     shift = max(np.linalg.norm(once.history.pose(i)[:3, 3] - eager.history.pose(i)[:3, 3]) for i in idx)
-    assert 0 < shift < 0.002 * scene.path_length(), (shift, scene.path_length())
+    assert 0 < shift < 0.001 * scene.path_length(), (shift, scene.path_length())
 
 
 def test_static_start_then_motion():
