@@ -90,3 +90,14 @@ def test_vio_set_replaces_odometry_and_window_fields_and_refuses_others():
     for bad in ("foo=1", "backend='process'", "solver=isam2", "solver"):
         with pytest.raises(ValueError, match="--vio-set"):
             br.parse_window(bad)
+
+
+def test_a_row_without_depth_is_not_judged():
+    """A sequence whose frames never got depth (the EuRoC slice: the camera is still) holds any rate
+    trivially: its verdict says so instead of PASS."""
+    fast = _vio_row(False, 0.004, 0.002, "klt")
+    fast.replay = br.Replay(np.zeros(3), processed=[0, 1, 2], starts=[0.0, 0.01, 0.02], finishes=[0.01, 0.02, 0.03],
+                            afap=True)
+    assert br.verdicts([fast])[0].endswith("**PASS**")
+    fast.with_depth = 0
+    assert br.verdicts([fast])[0].endswith("**NOT JUDGED**")
