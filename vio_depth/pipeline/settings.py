@@ -40,19 +40,19 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: preintegration, the covariance calibrated on EuRoC V1_01), ``imu_real_mav`` (``imu`` with the
 #: accelerometer noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md),
 #: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md) and ``vio_realtime``
-#: (``vio`` with its window's keyframe updates in a worker process, taken over 3 frames later,
+#: (``vio`` with its window's keyframe updates in a worker process, taken over 4 frames later,
 #: and KLT tracks unless a matcher is named: :func:`default_matcher_preset`; docs/benchmarks.md
 #: "vio_realtime, 2026-12-06"; since 2026-12-07 its window is refined by iSAM2 and the frames
 #: between keyframes are bridged again only when the window learnt their keyframe pair better,
-#: not after every update: docs/benchmarks.md "vio_realtime's worker: iSAM2, and bridges only
-#: when learnt better"). They live here, above
+#: not after every update, and the lag is 4 frames: docs/benchmarks.md "vio_realtime's worker:
+#: iSAM2, and bridges only when learnt better"). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
     "imu": ImuPoseSettings(),
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
     "vio": VioSettings(),
-    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=3),
+    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
                                 window=replace(VioSettings().window, solver="isam2"), bridge_every_update=False),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
@@ -60,7 +60,7 @@ POSE_PRESETS: Presets = Presets("pose source", {
     "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
                     "(calibrated on EuRoC V1_01)",
     "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
-    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 3 frames later, iSAM2), KLT "
+    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 4 frames later, iSAM2), KLT "
                     "tracks; drifts more outdoors, fewer frames get depth",
 })
 
@@ -109,7 +109,8 @@ def default_matcher_preset(poses: PoseSettings) -> str:
     ``klt`` too with the odometry's window in a worker process (``vio_realtime``): the worker
     answers frames from a window a few frames old, which tracks follow and SIFT's descriptor
     matches against keyframes do not (a lag of 6 cost SIFT 13.8 vs 6.7 mm ATE; with klt, lag 3,
-    the generated ASL datasets keep 20 Hz with the default's ATE and AbsRel).
+    the generated ASL datasets kept 20 Hz with the default's ATE and AbsRel on 2026-12-06's fast
+    machine; lag 4 since 2026-12-07).
     ``sift`` with the other estimated pose sources (``imu``, ``imu_real_mav``, ``vio``): KLT's
     odometry drifts twice as far as sift's on street (ATE 12.7 vs 6.0 cm), and klt under ``imu``
     is unmeasured. :class:`PipelineSettings` itself keeps ``sift`` as its field default."""

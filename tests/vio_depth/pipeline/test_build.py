@@ -56,7 +56,7 @@ def test_each_pose_preset_builds_its_source_from_its_settings_type():
     assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio", "vio_realtime"] and POSE_PRESETS.default == "gt"
     assert POSE_PRESETS["vio"] == VioSettings() and POSE_PRESETS["imu"] == ImuPoseSettings()
     realtime = POSE_PRESETS["vio_realtime"]
-    assert realtime.backend.kind == "process" and realtime.backend.lag_frames == 3
+    assert realtime.backend.kind == "process" and realtime.backend.lag_frames == 4
     # and only that, iSAM2 and bridges once (docs/benchmarks.md "vio_realtime's worker ...")
     assert realtime.window.solver == "isam2" and VioSettings().window.solver == "batch"
     assert realtime.bridge_every_update is False and VioSettings().bridge_every_update is True

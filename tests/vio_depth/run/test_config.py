@@ -67,7 +67,7 @@ def test_read_config_and_load_config(tmp_path):
 
 def test_vio_realtime_is_vio_with_the_window_in_a_worker_and_klt():
     s, _ = resolve_config({"poses": "vio_realtime"})
-    assert s.poses.backend.kind == "process" and s.poses.backend.lag_frames == 3
+    assert s.poses.backend.kind == "process" and s.poses.backend.lag_frames == 4
     assert isinstance(s.matcher, KltSettings) and s.pairing.allow_weak_pairs is False
     assert s.preset_names()["poses"] == "vio_realtime"
     # the worker, asked for in a file under plain vio, brings klt too; a named sift stays
