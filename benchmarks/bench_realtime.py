@@ -73,7 +73,10 @@ update) or ``process`` (the window in a worker process, :mod:`vio_depth.landmark
 its update is taken over N frames after the keyframe). With a worker, recorded-rate rows run
 on the wall clock (``replay(wall_clock=True)``: the worker computes while the consumer waits
 for the next frame) and the worker's start-up is inside the row (the odometry starts with the
-first frame).
+first frame). Such rows decode every frame before the replay and score the depth after it
+(:meth:`StreamRunner.preload`; before 2026-12-07 decoding, 8 ms a 752x564 frame, and scoring,
+32 ms, ran in the replay's wall time: they slowed the recorded-rate rows and gave the worker time
+in both modes); their peak RSS leaves the preloaded frames and kept depth maps out.
 
 **Points under vio** (``--vio-points sfm,vio``): the ``vio`` datasets' rows once per points
 source -- ``sfm`` (two-view pairs matched and triangulated again; the default) and ``vio`` (the
@@ -261,11 +264,34 @@ class StreamRunner:
         self.posed: list[bool] = []  # per processed frame: the pose source gave it a pose
         self.estimates: dict[int, np.ndarray] = {}  # frame index -> the odometry's live T_w_c (vio)
         self.abs_rel: list[float] = []  # per frame with depth, where the dataset knows the true depth
+        # (:meth:`preload`) the decoded frames, and the depth maps scored after the replay
+        self._loaded: list | None = None
+        self._deferred: list[tuple[int, np.ndarray]] = []
+
+    def preload(self) -> None:
+        """Decode every frame now and score the depth after the replay (:meth:`score_deferred`):
+        with the window's worker process beside the pushes, decoding (8 ms a 752x564 frame) and
+        scoring (32 ms) in the replay's wall time would take time from the pipeline and give the
+        worker time it would not have on a robot."""
+        self._loaded = [self.ds.load(i) for i in range(len(self.ds))]
+
+    def held_mib(self) -> float:
+        """MiB of the preloaded frames and of the depth maps kept for scoring (not the pipeline's)."""
+        arrays = [a for pair in (self._loaded or []) for a in pair] + [d for _, d in self._deferred]
+        return sum(a.nbytes for a in arrays) / 2**20
+
+    def score_deferred(self) -> None:
+        """Score the depth maps kept during a preloaded replay, in frame order."""
+        for i, depth in sorted(self._deferred, key=lambda x: x[0]):
+            disparity = self._loaded[i][1]
+            self.abs_rel.append(compute_metrics(depth, self.ds.true_depth(disparity), 1e-3,
+                                                ACCURACY_MAX_DEPTH_M).abs_rel)
+        self._deferred = []
 
     def inputs(self, i: int) -> tuple:
         """``(image, disparity, kwargs)`` of frame ``i``'s push (decoding: not timed)."""
         ds = self.ds
-        image, disparity = ds.load(i)
+        image, disparity = ds.load(i) if self._loaded is None else self._loaded[i]
         t = float(ds.timestamps[i])
         imu = None
         if ds.imu is not None:
@@ -298,7 +324,9 @@ class StreamRunner:
         pose = result.frame_pose
         if pose is not None and pose.ok and pose.T_w_c is not None:
             self.estimates[i] = np.asarray(pose.T_w_c, dtype=np.float64)
-        if result.depth is not None and self.ds.true_depth is not None:
+        if result.depth is not None and self.ds.true_depth is not None and self._loaded is not None:
+            self._deferred.append((i, result.depth))
+        elif result.depth is not None and self.ds.true_depth is not None:
             self.abs_rel.append(compute_metrics(result.depth, self.ds.true_depth(disparity), 1e-3,
                                                 ACCURACY_MAX_DEPTH_M).abs_rel)
 
@@ -478,6 +506,8 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
     # (the odometry, and its worker process, start with the first frame: the worker's start-up,
     # beside the initialisation's frames, is inside the timed row)
     process_backend = backend is not None and backend.kind == "process"
+    if process_backend and not prefetch:  # the worker runs beside the pushes: nothing else in their wall time
+        runner.preload()
     reset_peak_rss()
     if prefetch:
         with opencv_threads(1), blas_threads(1), TorchThreads(1):
@@ -495,8 +525,11 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
             f", catch-up {backend.catch_up_keyframes}") + (", provisional" if backend.provisional_landmarks else "")
     label += "".join(f", {k}={v}" for k, v in (window or {}).items())
     default = matcher == "sift" and points is None and not process_backend and not window
+    rss = peak_rss_mib()
+    rss = None if rss is None else rss - runner.held_mib()  # (preloaded rows: the frames and kept depth maps out)
+    runner.score_deferred()
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
-               peak_rss_mib(), dict(runner.statuses), label, list(runner.posed), runner.ate_m(),
+               rss, dict(runner.statuses), label, list(runner.posed), runner.ate_m(),
                float(np.mean(runner.abs_rel)) if runner.abs_rel else None, default)
 
 

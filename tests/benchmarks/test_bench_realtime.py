@@ -101,3 +101,20 @@ def test_a_row_without_depth_is_not_judged():
     assert br.verdicts([fast])[0].endswith("**PASS**")
     fast.with_depth = 0
     assert br.verdicts([fast])[0].endswith("**NOT JUDGED**")
+
+
+def test_a_preloaded_runner_scores_the_same_depth_after_the_replay():
+    """Rows with the window's worker decode every frame beforehand and score the depth after the
+    replay (decoding and scoring in its wall time would slow the pushes and feed the worker): the
+    AbsRel is the one scored frame by frame."""
+    from dataclasses import replace
+
+    ds = replace(_room_gt(6), true_depth=lambda d: np.where(d > 0, 1.0 / np.maximum(d, 1e-6), 0.0))
+    inline, preloaded = br.StreamRunner(ds, matcher="sift"), br.StreamRunner(ds, matcher="sift")
+    preloaded.preload()
+    for i in range(len(ds)):
+        inline(i)
+        preloaded(i)
+    assert inline.abs_rel and preloaded.abs_rel == [] and preloaded.held_mib() > 0
+    preloaded.score_deferred()
+    assert preloaded.abs_rel == pytest.approx(inline.abs_rel)
