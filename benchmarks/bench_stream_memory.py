@@ -228,12 +228,13 @@ class LoopVio:
     got depth, and its position when posed (a few numbers a frame)."""
 
     def __init__(self, folder: Path, matcher: str, guard: float | None, points: str | None = None,
-                 backend: WindowBackendSettings | None = None, history_frames: int | None = None):
+                 backend: WindowBackendSettings | None = None, history_frames: int | None = None,
+                 preset: str = "vio"):
         self.folder = folder
         self.seq = open_sequence(folder)
         self.frames = [self.seq[i] for i in range(len(self.seq))]
         self.imu = self.seq.imu
-        settings = pipeline_settings(matcher, guard, backend, history_frames, poses="vio", pairing="indoor",
+        settings = pipeline_settings(matcher, guard, backend, history_frames, poses=preset, pairing="indoor",
                                      points=points)
         self.stream = FrameStream(self.seq.camera, settings, imu_calibration=self.imu, pose_kind=self.seq.pose_kind)
         self.imu_done = -np.inf
@@ -331,6 +332,9 @@ def main(argv=None) -> int:
     parser.add_argument("--backends", default="inline", type=lambda t: [parse_backend(b) for b in t.split(",") if b],
                         help="vio rows, comma-separated: inline, process or process:LAG (the landmark window in a "
                              "worker; its memory is sampled too)")
+    parser.add_argument("--vio-preset", default="vio", choices=("vio", "vio_realtime"),
+                        help="vio rows: the pose preset (vio_realtime: iSAM2 window, bridges when learnt better; "
+                             "--backends still sets where the window runs)")
     parser.add_argument("--history-frames", type=int, default=None,
                         help="vio rows: VioSettings.history_frames (the poses remembered; default 20 000)")
     parser.add_argument("--tracemalloc", default="", metavar="A,B",
@@ -368,10 +372,11 @@ def main(argv=None) -> int:
                 # the peak (VmHWM) is reset before each row where Linux allows it
                 reset_peak_rss()
                 push = street_gt(matcher, args.frames, guard) if pose == "gt" else \
-                    LoopVio(folder, matcher, guard, args.points, backend, args.history_frames)
+                    LoopVio(folder, matcher, guard, args.points, backend, args.history_frames, args.vio_preset)
                 snapshots = dict.fromkeys(trace) if trace else None
                 rows = measure(args.frames, args.every, push, snapshots)
-                label = f"--poses {pose}, {matcher}" + ("" if guard is None else f", guard {guard:g}") \
+                label = f"--poses {args.vio_preset if pose == 'vio' else pose}, {matcher}" \
+                    + ("" if guard is None else f", guard {guard:g}") \
                     + ("" if backend is None else f", backend {backend.kind}"
                        + (f" (lag {backend.lag_frames})" if backend.kind == "process" else "")) \
                     + ("" if args.history_frames is None or pose == "gt" else f", history_frames {args.history_frames}")
