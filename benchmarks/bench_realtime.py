@@ -122,9 +122,8 @@ from matchers import MATCHER_PRESETS, SiftSettings  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings  # noqa: E402
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error  # noqa: E402
 from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
-from vio_depth.landmarks import LandmarkSettings, WindowBackendSettings  # noqa: E402
+from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
-from vio_depth.vio import VioSettings  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
 
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_realtime"
@@ -137,8 +136,6 @@ PREFETCH_THREADS, PREFETCH_WINDOW = 2, 3
 ACCURACY_MAX_DEPTH_M = 10.0
 #: issue 24: the fast configuration's ATE within 10 % and AbsRel within 5 % of the default's
 ATE_TOLERANCE, ABS_REL_TOLERANCE = 0.10, 0.05
-#: ``--vio-set``'s fields of the odometry itself (the others are its window's)
-VIO_FIELDS = frozenset(f.name for f in dataclasses.fields(VioSettings))
 
 
 # ----------------------------------------------------------------------------- replay and its accounting
@@ -246,10 +243,7 @@ class StreamRunner:
         self.ds = ds
         settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher, points=points)
         if window and ds.poses == "vio":  # --vio-set: fields of the odometry or of its landmark window
-            vio = settings.poses
-            own = {k: v for k, v in window.items() if k in VIO_FIELDS}
-            vio = replace(vio, window=replace(vio.window, **{k: v for k, v in window.items() if k not in own}), **own)
-            settings = replace(settings, poses=vio)
+            settings = with_changes(settings, window)
         if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
             settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
         if backend is not None:  # where the odometry's window updates run (VioSettings.backend)
@@ -283,9 +277,7 @@ class StreamRunner:
     def score_deferred(self) -> None:
         """Score the depth maps kept during a preloaded replay, in frame order."""
         for i, depth in sorted(self._deferred, key=lambda x: x[0]):
-            disparity = self._loaded[i][1]
-            self.abs_rel.append(compute_metrics(depth, self.ds.true_depth(disparity), 1e-3,
-                                                ACCURACY_MAX_DEPTH_M).abs_rel)
+            self.abs_rel.append(self._abs_rel(depth, self._loaded[i][1]))
         self._deferred = []
 
     def inputs(self, i: int) -> tuple:
@@ -324,11 +316,15 @@ class StreamRunner:
         pose = result.frame_pose
         if pose is not None and pose.ok and pose.T_w_c is not None:
             self.estimates[i] = np.asarray(pose.T_w_c, dtype=np.float64)
-        if result.depth is not None and self.ds.true_depth is not None and self._loaded is not None:
-            self._deferred.append((i, result.depth))
-        elif result.depth is not None and self.ds.true_depth is not None:
-            self.abs_rel.append(compute_metrics(result.depth, self.ds.true_depth(disparity), 1e-3,
-                                                ACCURACY_MAX_DEPTH_M).abs_rel)
+        if result.depth is not None and self.ds.true_depth is not None:
+            if self._loaded is not None:  # preloaded: scored after the replay
+                self._deferred.append((i, result.depth))
+            else:
+                self.abs_rel.append(self._abs_rel(result.depth, disparity))
+
+    def _abs_rel(self, depth: np.ndarray, disparity: np.ndarray) -> float:
+        """AbsRel of ``depth`` against the true depth behind ``disparity``, capped at :data:`ACCURACY_MAX_DEPTH_M`."""
+        return compute_metrics(depth, self.ds.true_depth(disparity), 1e-3, ACCURACY_MAX_DEPTH_M).abs_rel
 
     def ate_m(self) -> float | None:
         """RMSE of the live positions against the dataset's true ones after an SE(3) alignment
@@ -539,23 +535,51 @@ def baseline_row(ds: data.StreamData, baseline) -> Row:
     return Row(ds.name, ds.size, baseline.name, "afap", len(ds), result, rss_mib=peak_rss_mib())
 
 
-def parse_window(text: str) -> dict:
-    """``--vio-set``'s ``"key=value;key=value"`` as a dict of :class:`VioSettings` or
-    :class:`LandmarkSettings` fields (values as Python literals), checked against the settings'
-    fields; ``""``: no change."""
-    fields = VIO_FIELDS | {f.name for f in dataclasses.fields(LandmarkSettings)}
-    out = {}
+def with_changes(settings: PipelineSettings, changes: dict) -> PipelineSettings:
+    """``settings`` with each ``FIELD: value`` set on the odometry's window (``LandmarkSettings``), or
+    else on the odometry (``VioSettings``; ``backend`` as a tuple of ``WindowBackendSettings``' fields);
+    ValueError for a field of neither (``--vio-set`` here, ``bench_vio_online.py --set``)."""
+    vio = settings.poses
+    window_fields = {f.name for f in dataclasses.fields(vio.window)}
+    vio_fields = {f.name for f in dataclasses.fields(vio)}
+    unknown = [k for k in changes if k not in window_fields | vio_fields]
+    if unknown:
+        raise ValueError(f"unknown field(s) {', '.join(unknown)} (valid: LandmarkSettings or VioSettings fields)")
+    if "backend" in changes:  # e.g. --set "backend=('process', 6)": WindowBackendSettings' fields
+        b = changes["backend"]
+        changes = {**changes, "backend": WindowBackendSettings(*(b if isinstance(b, tuple) else (b,)))}
+    window = replace(vio.window, **{k: v for k, v in changes.items() if k in window_fields})
+    vio = replace(vio, window=window, **{k: v for k, v in changes.items() if k not in window_fields})
+    return replace(settings, poses=vio)
+
+
+def parse_vio_changes(text: str) -> dict:
+    """``"FIELD=VALUE;FIELD=VALUE"`` as ``{field: value}`` (values as Python literals; ``""``: none);
+    ValueError for an item that is not one. The fields are checked by :func:`with_changes`."""
+    changes = {}
     for item in (t for t in text.split(";") if t.strip()):
         key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or key not in fields or key in ("window", "backend"):
-            raise ValueError(f"--vio-set: {item!r} is not KEY=VALUE with KEY a VioSettings or LandmarkSettings "
-                             f"field (not window or backend: --vio-backends, --vio-lag)")
+        if not sep:
+            raise ValueError(f"{item!r} is not FIELD=VALUE")
         try:
-            out[key] = ast.literal_eval(value.strip())
+            changes[key.strip()] = ast.literal_eval(value.strip())
         except (ValueError, SyntaxError):
-            raise ValueError(f"--vio-set: {item!r}: the value is not a Python literal") from None
-    return out
+            raise ValueError(f"{item!r}: the value is not a Python literal") from None
+    return changes
+
+
+def parse_window(text: str) -> dict:
+    """``--vio-set``'s ``"key=value;key=value"`` (:func:`parse_vio_changes`), fields of
+    :class:`VioSettings` or :class:`LandmarkSettings` other than ``window`` and ``backend``
+    (``--vio-backends``, ``--vio-lag`` set those); ``""``: no change."""
+    try:
+        changes = parse_vio_changes(text)
+        if {"window", "backend"} & set(changes):
+            raise ValueError("window and backend are not set here (--vio-backends, --vio-lag)")
+        with_changes(PipelineSettings.from_presets(poses="vio"), changes)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"--vio-set {text!r}: {exc}") from None
+    return changes
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:

@@ -30,12 +30,11 @@ i.e. ``LandmarkSettings``, or else of ``VioSettings``).
 from __future__ import annotations
 
 import argparse
-import ast
 import os
 import platform
 import sys
 import time
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,12 +43,12 @@ sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # measure this checkout's 
 import numpy as np  # noqa: E402
 
 import realtime_data as data  # noqa: E402
-from bench_realtime import DEFAULT_CACHE  # noqa: E402
+from bench_realtime import DEFAULT_CACHE, parse_vio_changes, with_changes  # noqa: E402
 from vio_depth import FrameStream, PipelineSettings, open_sequence  # noqa: E402
 from vio_depth.disparity import FileDisparity, SimulatedDisparitySource  # noqa: E402
 from vio_depth.evaluation import umeyama_alignment  # noqa: E402
 from vio_depth.evaluation.metrics import oracle_fit  # noqa: E402
-from vio_depth.landmarks import LandmarkWindow, WindowBackendSettings  # noqa: E402
+from vio_depth.landmarks import LandmarkWindow  # noqa: E402
 
 SEQUENCES = {"asl_room": ("indoor", None), "room": ("indoor", 10.0), "street": (None, 80.0)}
 
@@ -59,22 +58,6 @@ def aligned_ate(est: np.ndarray, ref: np.ndarray) -> float:
     ``ref: (N, 3)`` (:func:`vio_depth.evaluation.umeyama_alignment`, no scale)."""
     R, t, _ = umeyama_alignment(est, ref)
     return float(np.sqrt(np.mean(np.sum((est @ R.T + t - ref) ** 2, axis=1))))
-
-
-def with_changes(settings: PipelineSettings, changes: dict) -> PipelineSettings:
-    """``settings`` with each ``FIELD: value`` set on the odometry's window, or else the odometry."""
-    vio = settings.poses
-    window_fields = {f.name for f in fields(vio.window)}
-    vio_fields = {f.name for f in fields(vio)}
-    unknown = [k for k in changes if k not in window_fields | vio_fields]
-    if unknown:
-        raise ValueError(f"unknown field(s) {', '.join(unknown)} (valid: LandmarkSettings or VioSettings fields)")
-    if "backend" in changes:  # e.g. --set "backend=('process', 6)": WindowBackendSettings' fields
-        b = changes["backend"]
-        changes = {**changes, "backend": WindowBackendSettings(*(b if isinstance(b, tuple) else (b,)))}
-    window = replace(vio.window, **{k: v for k, v in changes.items() if k in window_fields})
-    vio = replace(vio, window=window, **{k: v for k, v in changes.items() if k not in window_fields})
-    return replace(settings, poses=vio)
 
 
 def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
@@ -139,18 +122,10 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
 def parse_change(text: str) -> tuple[str, dict]:
     """``--set``'s ``FIELD=VALUE`` (or several, ``;``-separated: one run with all of them) as
     ``(text, {field: value})``."""
-    changes = {}
-    for item in (t for t in text.split(";") if t.strip()):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise argparse.ArgumentTypeError(f"--set wants FIELD=VALUE[;FIELD=VALUE...], got {text!r}")
-        try:
-            changes[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            raise argparse.ArgumentTypeError(f"--set {item!r}: the value is not a Python literal") from None
-    if not changes:
-        raise argparse.ArgumentTypeError("--set: no FIELD=VALUE given")
-    return text, changes
+    try:
+        return text, parse_vio_changes(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--set: {exc}") from None
 
 
 def main(argv=None) -> int:
