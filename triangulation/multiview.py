@@ -178,16 +178,75 @@ def _skew_batch(p: np.ndarray) -> np.ndarray:
                      np.stack([-p[:, 1], p[:, 0], z], 1)], 1)
 
 
-def _projection_jacobian(p_c: np.ndarray, fx: np.ndarray, fy: np.ndarray) -> np.ndarray:
-    """(N, 2, 3) d(ideal pixel)/d(point in camera) at ``p_c: (N, 3)``."""
+def point_jacobian(p_c: np.ndarray, fx, fy, R_cw: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) d(ideal pixel)/d(world point) at camera points ``p_c: (N, 3)`` metres, for
+    rotations ``R_cw: (N, 3, 3)`` (world to camera) and focal lengths ``fx, fy`` (pixels,
+    scalars or (N,)): ``[[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]] @ R_cw``, row by row
+    without a stacked matrix product (numpy's costs ~0.3 us a matrix, more than these few
+    products: the triangulation of a window's 4 000 observations went from 34 to 25 ms)."""
+    p_c = check_array("p_c", p_c, (None, 3))
+    R_cw = check_array("R_cw", R_cw, (len(p_c), 3, 3))
     x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
     iz = 1.0 / z
-    J = np.zeros((len(p_c), 2, 3))
-    J[:, 0, 0] = fx * iz
-    J[:, 0, 2] = -fx * x * iz * iz
-    J[:, 1, 1] = fy * iz
-    J[:, 1, 2] = -fy * y * iz * iz
+    a, b = fx * iz, fy * iz
+    c, d = -a * x * iz, -b * y * iz
+    J = np.empty((len(p_c), 2, 3))
+    J[:, 0] = a[:, None] * R_cw[:, 0] + c[:, None] * R_cw[:, 2]
+    J[:, 1] = b[:, None] * R_cw[:, 1] + d[:, None] * R_cw[:, 2]
     return J
+
+
+def image_pose_jacobian(p_c: np.ndarray, fx, fy) -> np.ndarray:
+    """(N, 2, 6) d(ideal pixel)/d xi at camera points ``p_c: (N, 3)`` metres (``T_w_c * Exp(xi)``,
+    rotation rad first, then metres; focal lengths ``fx, fy`` in pixels, scalars or (N,)):
+    the projection's Jacobian (:func:`point_jacobian`'s, without ``R_cw``) times
+    :func:`pose_jacobian`, in closed form."""
+    p_c = check_array("p_c", p_c, (None, 3))
+    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
+    iz = 1.0 / z
+    a, b = fx * iz, fy * iz
+    c, d = -a * x * iz, -b * y * iz
+    J = np.empty((len(p_c), 2, 6))
+    # [[a, 0, c], [0, b, d]] @ [skew(p_c) | -I]
+    J[:, 0, 0] = -c * y
+    J[:, 0, 1] = c * x - a * z
+    J[:, 0, 2] = a * y
+    J[:, 0, 3] = -a
+    J[:, 0, 4] = 0.0
+    J[:, 0, 5] = -c
+    J[:, 1, 0] = b * z - d * y
+    J[:, 1, 1] = d * x
+    J[:, 1, 2] = -b * x
+    J[:, 1, 3] = 0.0
+    J[:, 1, 4] = -b
+    J[:, 1, 5] = -d
+    return J
+
+
+def sandwich2(J: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) ``J_n C_n J_n^T`` of ``J: (N, 2, k)`` and symmetric ``C: (N, k, k)`` (one stacked
+    product instead of two; the result exactly symmetric)."""
+    J = check_array("J", J, (None, 2, None))
+    C = check_array("C", C, (len(J), J.shape[2], J.shape[2]))
+    W = J @ C
+    S = np.empty((len(J), 2, 2))
+    S[:, 0, 0] = np.einsum("ij,ij->i", W[:, 0], J[:, 0])
+    S[:, 1, 1] = np.einsum("ij,ij->i", W[:, 1], J[:, 1])
+    S[:, 0, 1] = S[:, 1, 0] = np.einsum("ij,ij->i", W[:, 0], J[:, 1])
+    return S
+
+
+def _normal_terms(J: np.ndarray, S_inv: np.ndarray, r: np.ndarray | None = None):
+    """Per observation, row by row in closed form, of ``J: (N, 2, 3)``, symmetric ``S_inv: (N, 2, 2)``
+    and ``r: (N, 2)``: ``J^T S^-1 J: (N, 3, 3)``, ``J^T S^-1 r: (N, 3)`` (None without ``r``) and
+    ``J^T S^-1: (N, 3, 2)``."""
+    j0, j1 = J[:, 0], J[:, 1]
+    s00, s01, s11 = S_inv[:, 0, 0, None], S_inv[:, 0, 1, None], S_inv[:, 1, 1, None]
+    JtS = np.empty((len(J), 3, 2))
+    w0 = JtS[:, :, 0] = s00 * j0 + s01 * j1
+    w1 = JtS[:, :, 1] = s01 * j0 + s11 * j1
+    H = j0[:, :, None] * w0[:, None, :] + j1[:, :, None] * w1[:, None, :]
+    return H, None if r is None else w0 * r[:, :1] + w1 * r[:, 1:], JtS
 
 
 def pose_jacobian(p_c) -> np.ndarray:
@@ -214,10 +273,14 @@ def _project(R_cw, d_w, fx, fy, cx, cy, ideal):
 
 
 def _linear_points(t, rays_w, centres, w, n_tracks):
-    """Least-squares nearest point to weighted rays: (T, 3) and (T,) bool solvable."""
-    P = _EYE3[None] - rays_w[:, :, None] * rays_w[:, None, :]
-    A = sum_by(t, w[:, None, None] * P, n_tracks)
-    b = sum_by(t, w[:, None] * np.einsum("nij,nj->ni", P, centres), n_tracks)
+    """Least-squares nearest point to weighted unit rays: (T, 3) and (T,) bool solvable.
+
+    Normal equations ``sum w (I - f f^T) X = sum w (I - f f^T) c``, summed as
+    ``(sum w) I - sum w f f^T`` and ``sum w (c - f (f . c))``."""
+    wf = w[:, None] * rays_w
+    A = sum_by(t, wf[:, :, None] * rays_w[:, None, :], n_tracks)
+    A = np.bincount(t, weights=w, minlength=n_tracks)[:, None, None] * _EYE3 - A
+    b = sum_by(t, w[:, None] * centres - wf * np.einsum("nj,nj->n", rays_w, centres)[:, None], n_tracks)
     return solve3(A, b)
 
 
@@ -299,15 +362,15 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     cov_v = None if cov is None else cov[view]
 
     def obs_info(p_c, o=slice(None)):
-        """Projection Jacobians, whitening and pose Jacobians of the observations ``o``."""
-        Jp = _projection_jacobian(p_c, fx[o], fy[o])
+        """Whitening and pose Jacobians of the observations ``o``."""
         S = np.zeros((len(p_c), 2, 2))
-        S[:, 0, 0] = S[:, 1, 1] = s.pixel_sigma_px**2
         J_pose = None
         if cov is not None:
-            J_pose = Jp @ pose_jacobian(p_c)  # (M, 2, 6) pixels per pose tangent unit
-            S = S + J_pose @ cov_v[o] @ np.transpose(J_pose, (0, 2, 1))
-        return Jp, inv2(S), J_pose
+            J_pose = image_pose_jacobian(p_c, fx[o], fy[o])  # (M, 2, 6) pixels per pose tangent unit
+            S = sandwich2(J_pose, cov_v[o])
+        S[:, 0, 0] += s.pixel_sigma_px**2
+        S[:, 1, 1] += s.pixel_sigma_px**2
+        return inv2(S), J_pose
 
     def residuals(X, o=slice(None)):
         """Camera points and ideal-pixel residuals of the observations ``o`` at points ``X``."""
@@ -328,7 +391,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     # as the points move (residuals are row-wise: what recomputing them would give)
     pc_all, r_all = residuals(X)
     o = np.nonzero(solve[t])[0]  # observations of the tracks solved in this round
-    S_inv[o] = obs_info(pc_all[o], o)[1]
+    S_inv[o] = obs_info(pc_all[o], o)[0]
     for round_ in range(s.outlier_rounds + 1):
         # --- Gauss-Newton on the whitened reprojection error (the whitening is fixed within
         # a round: it depends on the point only through the pose term, slowly)
@@ -342,13 +405,11 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             n = len(rows)
             p_c, r = pc_all[o], r_all[o]
             S_o, R_o, c_o, fx_o, fy_o = S_inv[o], R_cw[o], centres[o], fx[o], fy[o]
-            Jp = _projection_jacobian(p_c, fx_o, fy_o)
             use = inlier[o] & (p_c[:, 2] > 0)
-            J = Jp @ R_o  # (M, 2, 3) d pixel / d X
-            JtS = np.transpose(J, (0, 2, 1)) @ S_o
+            H_o, g_o, _ = _normal_terms(point_jacobian(p_c, fx_o, fy_o, R_o), S_o, finite(r))
             wts = use.astype(float)
-            H = sum_by(tc, wts[:, None, None] * (JtS @ J), n)
-            g = sum_by(tc, wts[:, None] * np.einsum("nij,nj->ni", JtS, finite(r)), n)
+            H = sum_by(tc, wts[:, None, None] * H_o, n)
+            g = sum_by(tc, wts[:, None] * g_o, n)
             step, solvable = solve3(H, -g)
             e0 = quad2(r, S_o)
             cost0 = np.bincount(tc, weights=np.where(use & np.isfinite(e0), e0, 0.0), minlength=n)
@@ -373,7 +434,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
         # --- drop the worst outlier of each track that has one
         o = np.nonzero(solve[t])[0]
         p_c, r = pc_all[o], r_all[o]
-        S_inv[o] = obs_info(p_c, o)[1]
+        S_inv[o] = obs_info(p_c, o)[0]
         e = quad2(finite(r, nan=1e6), S_inv[o])
         e = np.where(p_c[:, 2] > 0, e, np.inf)
         bad = inlier[o] & (e > s.max_residual_sigmas**2)
@@ -392,16 +453,15 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
 
     # --- final residuals, gate, covariance, per-observation depth and sigma
     p_c, r = pc_all, r_all
-    Jp, S_inv, J_pose = obs_info(p_c)
+    S_inv, J_pose = obs_info(p_c)
     e = quad2(finite(r, nan=1e6), S_inv)
     behind = p_c[:, 2] <= 0
     inlier &= active[t] & (behind | (e <= s.max_residual_sigmas**2))
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
     mark(n_in < 2, TrackStatus.REPROJECTION)
 
-    J = Jp @ R_cw
-    JtS = np.transpose(J, (0, 2, 1)) @ S_inv
-    H = sum_by(t, inlier[:, None, None] * (JtS @ J), n_tracks)
+    H_o, _, JtS = _normal_terms(point_jacobian(p_c, fx, fy, R_cw), S_inv)
+    H = sum_by(t, inlier[:, None, None] * H_o, n_tracks)
     cov_w = inv3(H)[0]
 
     # largest angle between inlier rays (the pair with the extreme directions)
@@ -415,16 +475,17 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
 
     depth = p_c[:, 2]
     a = R_cw[:, 2, :]  # dz/dX
-    C = cov_w[t]
-    var = np.einsum("ni,ni->n", a, np.einsum("nij,nj->ni", np.nan_to_num(C), a))
+    Ca = np.einsum("nij,nj->ni", np.nan_to_num(cov_w)[t], a)  # H^-1 a (H^-1 symmetric)
+    var = np.einsum("ni,ni->n", a, Ca)
     if cov is not None:
-        b = pose_jacobian(p_c)[:, 2, :]  # dz/dxi
-        Sv = cov[view]
-        var = var + np.einsum("ni,ni->n", b, np.einsum("nij,nj->ni", Sv, b))
-        # cross term: the point was estimated from this view's (uncertain) pose
-        A = np.nan_to_num(C) @ JtS  # (M, 3, 2)
-        Sb = np.einsum("nkl,nl->nk", Sv, b)  # pairwise contractions: one 5-operand einsum is 10x slower
-        cross = np.einsum("nk,nk->n", np.einsum("nj,njk->nk", np.einsum("ni,nij->nj", a, A), J_pose), Sb)
+        b = np.zeros((m, 6))  # dz/dxi: row z of pose_jacobian, [-y, x, 0, 0, 0, -1]
+        b[:, 0], b[:, 1], b[:, 5] = -p_c[:, 1], p_c[:, 0], -1.0
+        Sb = np.einsum("nkl,nl->nk", cov_v, b)  # pairwise contractions: one 5-operand einsum is 10x slower
+        var = var + np.einsum("ni,ni->n", b, Sb)
+        # cross term: the point was estimated from this view's (uncertain) pose,
+        # a^T H^-1 J_X^T S^-1 J_pose Sigma b
+        q = np.einsum("nj,njk->nk", Ca, JtS)  # (M, 2)
+        cross = np.einsum("nk,nk->n", q[:, 0, None] * J_pose[:, 0] + q[:, 1, None] * J_pose[:, 1], Sb)
         var = var + 2.0 * np.where(inlier, cross, 0.0)
     sigma = np.sqrt(np.maximum(var, 0.0))
 

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from triangulation.batched import inv2, quad2
-from triangulation.multiview import pose_jacobian
+from triangulation.multiview import image_pose_jacobian, point_jacobian, sandwich2
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 
@@ -56,7 +56,10 @@ def _normal_equations(J: np.ndarray, S_inv: np.ndarray, w: np.ndarray, r: np.nda
     """``(sum_n w_n J_n^T S_n^-1 J_n, sum_n w_n J_n^T S_n^-1 r_n)``: (6, 6) and (6,), from (N, 2, 6)
     Jacobians, (N, 2, 2) inverse covariances, (N,) weights and (N, 2) residuals, as two matrix
     products over all landmarks' rows."""
-    WJ = S_inv @ J * w[:, None, None]  # (N, 2, 6): w_n S_n^-1 J_n (S symmetric)
+    s00, s01, s11 = (w * S_inv[:, 0, 0])[:, None], (w * S_inv[:, 0, 1])[:, None], (w * S_inv[:, 1, 1])[:, None]
+    WJ = np.empty(J.shape)  # (N, 2, 6): w_n S_n^-1 J_n (S symmetric), row by row
+    WJ[:, 0] = s00 * J[:, 0] + s01 * J[:, 1]
+    WJ[:, 1] = s01 * J[:, 0] + s11 * J[:, 1]
     WJ = WJ.reshape(-1, 6)
     return WJ.T @ J.reshape(-1, 6), WJ.T @ r.reshape(-1)
 
@@ -98,17 +101,10 @@ def refine_pose(points_w, point_covariance, uv, camera: Camera, T_w_c_prior, pri
         return p_c, proj - ideal, R_cw
 
     def jacobians(p_c, R_cw):
-        z = p_c[:, 2]
-        Jp = np.zeros((n, 2, 3))
-        Jp[:, 0, 0] = f[0] / z
-        Jp[:, 0, 2] = -f[0] * p_c[:, 0] / z**2
-        Jp[:, 1, 1] = f[1] / z
-        Jp[:, 1, 2] = -f[1] * p_c[:, 1] / z**2
-        JX = Jp @ R_cw
-        S = JX @ C @ np.transpose(JX, (0, 2, 1))
+        S = sandwich2(point_jacobian(p_c, f[0], f[1], np.broadcast_to(R_cw, (n, 3, 3))), C)
         S[:, 0, 0] += pixel_sigma_px**2
         S[:, 1, 1] += pixel_sigma_px**2
-        return Jp @ pose_jacobian(p_c), inv2(S)
+        return image_pose_jacobian(p_c, f[0], f[1]), inv2(S)
 
     delta = np.zeros(6)
     T = T0
