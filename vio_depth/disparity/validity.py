@@ -70,7 +70,7 @@ def check_map_content(disparity, min_valid_fraction: float = MIN_VALID_FRACTION,
     if fraction < min_valid_fraction:
         return DisparityCheck(False, fraction, f"only {fraction:.1%} of the disparity map is valid "
                                                f"(< min_valid_fraction {min_valid_fraction:.0%})")
-    values = d[finite]
+    values = d if n_valid == d.size else d[finite]  # the usual all-finite map: no masked copy
     lo, hi = float(values.min()), float(values.max())
     if not hi > lo:
         return DisparityCheck(False, fraction, f"every valid disparity pixel is {lo:g}: the map orders no depths")
