@@ -13,7 +13,9 @@ The window holds the newest ``window_keyframes`` keyframes. Each new keyframe:
 3. every track with two or more observations is triangulated over the window
    (:func:`triangulation.multiview.triangulate_tracks`, with the poses' current
    uncertainty) -- again only where the new keyframe changed the track; an unchanged track
-   keeps the last update's result (:mod:`.incremental`); its outlier observations are split
+   keeps the last update's result (:mod:`.incremental`), and with
+   ``settings.gate_extended_tracks`` a track the new keyframe only extended keeps its point,
+   the new observation judged against it; its outlier observations are split
    off the track, and the VALID ones
    become ``Point3`` landmarks with ``GenericProjectionFactorCal3DS2`` factors (raw pixels,
    the camera's distortion; Huber kernel);
@@ -232,18 +234,21 @@ class LandmarkWindow:
                                else float("nan")})
 
     # ------------------------------------------------------------------ optimisation
-    def _triangulate(self, previous=None, fresh_frames=()):
+    def _triangulate(self, previous=None, fresh_frames=(), gate_frame: int | None = None):
         """Triangulate the window's tracks (min_track_length observations or more).
 
         ``previous``: ``(observations, MultiviewPoints)`` of an earlier triangulation, or
         None. Its result is kept for the tracks whose observations did not change since
         and that have no observation in a keyframe of ``fresh_frames``; the others are
-        triangulated at the current poses and covariances (:mod:`.incremental`).
+        triangulated at the current poses and covariances (:mod:`.incremental`) -- except,
+        with ``gate_frame``, the tracks that only gained an observation in that keyframe
+        (:func:`~.incremental.gate_extensions`).
         """
         ids = self.keyframe_ids
         obs, res = triangulate_window(self.tracks, ids, [self._kf[f].info.camera for f in ids],
                                       np.stack([self.pose(f) for f in ids]), self.relative_covariances(),
-                                      self.settings.multiview, self.settings.min_track_length, previous, fresh_frames)
+                                      self.settings.multiview, self.settings.min_track_length, previous, fresh_frames,
+                                      gate_frame)
         self._obs = obs
         return obs, res
 
@@ -257,7 +262,7 @@ class LandmarkWindow:
                     self._graph.set_pose(f, k.info.T_w_c)
         # the tracks the new keyframe did not change keep the last update's triangulation
         previous = None if self._landmarks is None else (self._obs, self._landmarks)
-        obs, mv = self._triangulate(previous, [new_id])
+        obs, mv = self._triangulate(previous, [new_id], new_id if s.gate_extended_tracks else None)
         self._pre = (obs, mv)
         # per-track outlier rejection: observations outside the gate leave their track
         out = ~mv.inlier & (mv.status[mv.obs_track] != TrackStatus.TOO_FEW_VIEWS)

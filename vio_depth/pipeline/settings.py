@@ -45,7 +45,9 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: "vio_realtime, 2026-12-06"; since 2026-12-07 its window is refined by iSAM2 and the frames
 #: between keyframes are bridged again only when the window learnt their keyframe pair better,
 #: not after every update, and the lag is 4 frames: docs/benchmarks.md "vio_realtime's worker:
-#: iSAM2, and bridges only when learnt better"). They live here, above
+#: iSAM2, and bridges only when learnt better"; and the tracks a keyframe only extends are gated
+#: against their points before the refinement instead of triangulated twice: "The worker's
+#: keyframe update, 2026-12-07 (late)"). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
@@ -53,7 +55,8 @@ POSE_PRESETS: Presets = Presets("pose source", {
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
     "vio": VioSettings(),
     "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
-                                window=replace(VioSettings().window, solver="isam2"), bridge_every_update=False),
+                                window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True),
+                                bridge_every_update=False),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",

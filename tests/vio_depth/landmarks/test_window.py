@@ -66,10 +66,11 @@ def _two_view_errors(scene, gap=3):
     return np.concatenate(errs)
 
 
-def test_refined_landmarks_beat_two_view_under_noisy_poses():
+@pytest.mark.parametrize("gate", [False, True])
+def test_refined_landmarks_beat_two_view_under_noisy_poses(gate):
     scene = make_scene(n_frames=16, n_points=300, step_m=0.06, prior_rot_deg=ROT_DEG, prior_trans_m=TRANS_M,
                        pixel_sigma=0.5, seed=3)
-    _, out = _run(scene, LandmarkSettings(pose_prior=NOISY))
+    _, out = _run(scene, LandmarkSettings(pose_prior=NOISY, gate_extended_tracks=gate))
     lm = _errors(out, first=6)
     two = _two_view_errors(scene)
     assert len(lm) > 1000
@@ -131,10 +132,12 @@ def test_marginalisation_keeps_memory_bounded():
     assert est.window.keyframe_ids == list(range(20, 24))
 
 
-def test_wrong_matches_are_rejected():
+@pytest.mark.parametrize("gate", [False, True])
+def test_wrong_matches_are_rejected(gate):
     """5 % of the keypoints are wrong matches (moved by 20-60 px): almost none reach the
-    returned points, and the points are as accurate as without them."""
-    settings = LandmarkSettings(pose_prior=pose_prior_preset("exact"))
+    returned points, and the points are as accurate as without them -- also when the tracks a
+    keyframe extends are gated against their points instead of triangulated again."""
+    settings = LandmarkSettings(pose_prior=pose_prior_preset("exact"), gate_extended_tracks=gate)
     scene = make_scene(n_frames=14, n_points=300, step_m=0.06, outlier_fraction=0.05, seed=7)
     _, out = _run(scene, settings)
     used = np.concatenate([scene.outlier[k][p.keypoint_index] for k, (p, _, _) in enumerate(out) if len(p)])
