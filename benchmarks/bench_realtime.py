@@ -97,6 +97,15 @@ odometry's own landmarks and covariances, nothing matched twice; issue 24, item 
 ``--vio-set`` (repeatable, one row set each) replaces fields of the odometry's settings
 (``VioSettings``) or of its window (``LandmarkSettings``) in the vio rows; a row with any is
 not the default row of the accuracy comparison.
+
+**The CLI's pose presets** (``--pose-presets vio,vio_realtime``): the vio datasets' rows are then
+one set per named ``--poses`` preset, each exactly as ``vio-depth run --poses NAME`` builds it
+(its settings and its default matcher: sift for ``vio``, klt for ``vio_realtime``), times
+``--vio-points`` and ``--modes``; ``--matchers``, ``--vio-backends``, ``--vio-lag`` and
+``--vio-set`` shape only the other rows. ``vio`` with ``--points sfm`` is the default row::
+
+    python benchmarks/bench_realtime.py --datasets asl_loop,asl_room --pose-presets vio,vio_realtime \
+        --vio-points sfm,vio --modes afap,realtime --no-baselines
 """
 
 from __future__ import annotations
@@ -126,8 +135,10 @@ from vio_depth import FrameStream, PipelineSettings  # noqa: E402
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error  # noqa: E402
 from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
 from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
+from vio_depth.pipeline import POSE_PRESETS, default_matcher_preset  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
+from vio_depth.vio import VioSettings  # noqa: E402
 
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vio-depth" / "bench_realtime"
 #: stage columns of the per-stage table (``matching`` and ``triangulation`` are parts of ``points``)
@@ -242,15 +253,18 @@ class StreamRunner:
 
     def __init__(self, ds: data.StreamData, prefetch: int = 0, matcher: str = "sift",
                  edge_guard: float | None = None, points: str | None = None,
-                 backend: WindowBackendSettings | None = None, window: dict | None = None):
+                 backend: WindowBackendSettings | None = None, window: dict | None = None,
+                 poses: str | None = None):
         self.ds = ds
-        settings = PipelineSettings.from_presets(poses=ds.poses, pairing=ds.pairing, matcher=matcher, points=points)
+        settings = PipelineSettings.from_presets(poses=poses or ds.poses, pairing=ds.pairing, matcher=matcher,
+                                                 points=points)
         if window and ds.poses == "vio":  # --vio-set: fields of the odometry or of its landmark window
             settings = with_changes(settings, window)
         if edge_guard is not None:  # --edge-guard: corners on depth edges are not fitted
             settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=edge_guard))
         if backend is not None:  # where the odometry's window updates run (VioSettings.backend)
             settings = replace(settings, poses=replace(settings.poses, backend=backend))
+        self.settings = settings
         self.stream = FrameStream(ds.camera, settings, imu_calibration=ds.imu, pose_kind=ds.pose_kind,
                                   prefetch=prefetch)
         self.imu_done = -np.inf
@@ -506,16 +520,22 @@ def stage_means(runner: StreamRunner) -> dict[str, float]:
 def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int, warmup: int,
                  prefetch: bool = False, matcher: str = "sift", edge_guard: float | None = None,
                  points: str | None = None, backend: WindowBackendSettings | None = None,
-                 window: dict | None = None) -> Row:
+                 window: dict | None = None, poses: str | None = None) -> Row:
+    """One row: ``ds`` replayed through a fresh stream (``poses``: a ``--poses`` preset of the vio
+    datasets instead of ``ds.poses``, as the CLI builds it; the other arguments as
+    :class:`StreamRunner`'s)."""
     window = window if ds.poses == "vio" else None
     if warmup:
-        warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend, window)
+        warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend, window, poses)
         for i in range(min(warmup, len(ds))):
             warm(i)
         del warm
-    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend, window)
+    runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend, window,
+                          poses)
     # (the odometry, and its worker process, start with the first frame: the worker's start-up,
     # beside the initialisation's frames, is inside the timed row)
+    vio = runner.settings.poses if isinstance(runner.settings.poses, VioSettings) else None
+    backend = None if vio is None else vio.backend
     process_backend = backend is not None and backend.kind == "process"
     if process_backend and not prefetch:  # the worker runs beside the pushes: nothing else in their wall time
         runner.preload()
@@ -528,14 +548,14 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
         result = replay(ds.timestamps, runner, rate_scale=rate_scale, queue_size=queue_size,
                         wall_clock=process_backend)
         mode = "afap" if rate_scale is None else f"realtime x{rate_scale:g}"
-    label = matcher + ("" if edge_guard is None else f", guard {edge_guard:g}") + (
-        "" if points is None else f", points {points}")
+    label = ("" if poses is None else f"--poses {poses}, ") + matcher + (
+        "" if edge_guard is None else f", guard {edge_guard:g}") + ("" if points is None else f", points {points}")
     if process_backend:
         label += f", worker lag {backend.lag_frames}" + (" when ready" if backend.apply_when_ready else "") + (
             f", queue {backend.max_pending_keyframes}" if backend.max_pending_keyframes > 1 else "") + (
             f", catch-up {backend.catch_up_keyframes}") + (", provisional" if backend.provisional_landmarks else "")
     label += "".join(f", {k}={v}" for k, v in (window or {}).items())
-    default = matcher == "sift" and points is None and not process_backend and not window
+    default = matcher == "sift" and points is None and not process_backend and not window and poses in (None, "vio")
     rss = peak_rss_mib()
     rss = None if rss is None else rss - runner.held_mib()  # (preloaded rows: the frames and kept depth maps out)
     runner.score_deferred()
@@ -717,6 +737,10 @@ def main(argv=None) -> int:
                         help="one row set per use: fields of the odometry (VioSettings) or of its landmark window "
                              "(LandmarkSettings) replaced, e.g. \"solver='isam2';bridge_every_update=False\"; "
                              "'' = the preset's")
+    parser.add_argument("--pose-presets", default="",
+                        help="comma-separated --poses presets of the vio datasets' rows (e.g. vio,vio_realtime), "
+                             "each as the CLI builds it with its default matcher; replaces --matchers, "
+                             "--vio-backends, --vio-lag and --vio-set for those rows")
     parser.add_argument("--no-baselines", action="store_true")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     args = parser.parse_args(argv)
@@ -731,6 +755,11 @@ def main(argv=None) -> int:
     bad = [m for m in matchers if m not in MATCHER_PRESETS]
     if bad or not matchers:
         parser.error(f"unknown matcher(s) {', '.join(bad) or '(none)'} (valid: {', '.join(MATCHER_PRESETS)})")
+    presets = [p for p in args.pose_presets.split(",") if p]
+    vio_names = [n for n in POSE_PRESETS if isinstance(POSE_PRESETS[n], VioSettings)]
+    bad_presets = [p for p in presets if p not in vio_names]
+    if bad_presets:
+        parser.error(f"unknown --pose-presets {', '.join(bad_presets)} (valid: {', '.join(vio_names)})")
     vio_points = [p for p in args.vio_points.split(",") if p]
     if not vio_points or not set(vio_points) <= {"sfm", "vio"}:
         parser.error(f"unknown --vio-points {args.vio_points!r} (valid: sfm, vio)")
@@ -767,7 +796,12 @@ def main(argv=None) -> int:
               f"{ds.pairing}): {ds.description}", flush=True)
         sources = vio_points if ds.poses == "vio" else [None]
         where = backends if ds.poses == "vio" else [None]
-        for matcher, points, backend, window, mode in itertools.product(matchers, sources, where, windows, modes):
+        if ds.poses == "vio" and presets:  # the CLI's named configurations, each with its own matcher
+            specs = [(default_matcher_preset(POSE_PRESETS[p]), points, None, {}, mode, p)
+                     for p, points, mode in itertools.product(presets, sources, modes)]
+        else:
+            specs = [(*spec, None) for spec in itertools.product(matchers, sources, where, windows, modes)]
+        for matcher, points, backend, window, mode, preset in specs:
             if mode == "prefetch" and matcher == "klt":
                 continue  # a tracker follows the previous frame: nothing to extract ahead
             row = pipeline_row(ds, args.rate_scale if mode == "realtime" else None, args.queue_size, args.warmup,
@@ -775,7 +809,7 @@ def main(argv=None) -> int:
                                edge_guard=args.klt_edge_guard if matcher == "klt" else None,
                                points=None if points == "sfm" else points,
                                backend=None if backend is None or backend.kind == "inline" else backend,
-                               window=window)
+                               window=window, poses=preset)
             rows.append(row)
             print(f"  {row.matcher} {row.mode}: {row.replay.fps:.1f} frames/s, statuses {row.statuses}", flush=True)
         if not args.no_baselines:

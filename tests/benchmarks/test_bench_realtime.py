@@ -145,3 +145,10 @@ def test_drops_after_the_start_exclude_the_frames_that_arrived_before_the_first_
     assert "8 of 200 frames dropped (3 after the start)" in verdict and verdict.endswith("**FAIL**")
     after = br.HEADER.index("dropped after start")
     assert later.cells()[after] == "3" and fast.cells()[after] == "-"
+
+
+def test_pose_presets_must_be_the_odometry_presets():
+    """``--pose-presets`` names the CLI's vio presets; gt (or a typo) is refused with the valid names."""
+    for bad in ("gt", "vio_fast"):
+        with pytest.raises(SystemExit):
+            br.main(["--datasets", "asl_room", "--pose-presets", bad])
