@@ -659,7 +659,8 @@ def verdicts(rows: list[Row]) -> list[str]:
                   and r.mode == "realtime x1"]
             ok_fps = row.replay.fps >= 20
             size = row.size if row.size == "752x480" else f"{row.size}, indicative: the target is stated for 752x480"
-            text = f"- {row.dataset} --poses vio --matcher {row.matcher} ({size}): {row.replay.fps:.1f} frames/s " \
+            what = row.matcher if row.matcher.startswith("--poses") else f"--poses vio --matcher {row.matcher}"
+            text = f"- {row.dataset} {what} ({size}): {row.replay.fps:.1f} frames/s " \
                    f"as fast as possible ({'>=' if ok_fps else '<'} 20)"
             ok = ok_fps
             if rt:
