@@ -1,5 +1,6 @@
 """Triangulation with known metric poses: two views (``triangulate``) on their epipolar
-geometry (``epipolar``), N-view tracks with pose uncertainty (``multiview``), whether the
+geometry (``epipolar``), N-view tracks with pose uncertainty (``multiview``, its projection
+Jacobians in ``jacobians``, its batched small algebra in ``batched``), whether the
 images agree with a stated pose (``consistency``) and how precise a pair's points would be
 (``precision``).
 

@@ -64,6 +64,7 @@ from vio_core.checks import check_array
 from vio_core.errors import InputError, SettingsError
 
 from .batched import finite, inv2, inv3, quad2, solve3, sum_by
+from .jacobians import image_pose_jacobian, normal_terms, point_jacobian, pose_jacobian, sandwich2
 
 # numerical floor on the largest angle between a track's rays (degrees): below it the
 # geometry is treated as degenerate whatever the stated uncertainties say
@@ -168,98 +169,6 @@ def _rotation_blocks(T_w_c: np.ndarray):
     R_wc = T_w_c[:, :3, :3]
     c_w = T_w_c[:, :3, 3]
     return np.transpose(R_wc, (0, 2, 1)), c_w
-
-
-def _skew_batch(p: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) cross-product matrices of ``p: (N, 3)``."""
-    z = np.zeros(len(p))
-    return np.stack([np.stack([z, -p[:, 2], p[:, 1]], 1),
-                     np.stack([p[:, 2], z, -p[:, 0]], 1),
-                     np.stack([-p[:, 1], p[:, 0], z], 1)], 1)
-
-
-def point_jacobian(p_c: np.ndarray, fx, fy, R_cw: np.ndarray) -> np.ndarray:
-    """(N, 2, 3) d(ideal pixel)/d(world point) at camera points ``p_c: (N, 3)`` metres, for
-    rotations ``R_cw: (N, 3, 3)`` (world to camera) and focal lengths ``fx, fy`` (pixels,
-    scalars or (N,)): ``[[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]] @ R_cw``, row by row
-    without a stacked matrix product (numpy's costs ~0.3 us a matrix, more than these few
-    products: the triangulation of a window's 4 000 observations went from 34 to 25 ms)."""
-    p_c = check_array("p_c", p_c, (None, 3))
-    R_cw = check_array("R_cw", R_cw, (len(p_c), 3, 3))
-    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
-    iz = 1.0 / z
-    a, b = fx * iz, fy * iz
-    c, d = -a * x * iz, -b * y * iz
-    J = np.empty((len(p_c), 2, 3))
-    J[:, 0] = a[:, None] * R_cw[:, 0] + c[:, None] * R_cw[:, 2]
-    J[:, 1] = b[:, None] * R_cw[:, 1] + d[:, None] * R_cw[:, 2]
-    return J
-
-
-def image_pose_jacobian(p_c: np.ndarray, fx, fy) -> np.ndarray:
-    """(N, 2, 6) d(ideal pixel)/d xi at camera points ``p_c: (N, 3)`` metres (``T_w_c * Exp(xi)``,
-    rotation rad first, then metres; focal lengths ``fx, fy`` in pixels, scalars or (N,)):
-    the projection's Jacobian (:func:`point_jacobian`'s, without ``R_cw``) times
-    :func:`pose_jacobian`, in closed form."""
-    p_c = check_array("p_c", p_c, (None, 3))
-    x, y, z = p_c[:, 0], p_c[:, 1], p_c[:, 2]
-    iz = 1.0 / z
-    a, b = fx * iz, fy * iz
-    c, d = -a * x * iz, -b * y * iz
-    J = np.empty((len(p_c), 2, 6))
-    # [[a, 0, c], [0, b, d]] @ [skew(p_c) | -I]
-    J[:, 0, 0] = -c * y
-    J[:, 0, 1] = c * x - a * z
-    J[:, 0, 2] = a * y
-    J[:, 0, 3] = -a
-    J[:, 0, 4] = 0.0
-    J[:, 0, 5] = -c
-    J[:, 1, 0] = b * z - d * y
-    J[:, 1, 1] = d * x
-    J[:, 1, 2] = -b * x
-    J[:, 1, 3] = 0.0
-    J[:, 1, 4] = -b
-    J[:, 1, 5] = -d
-    return J
-
-
-def sandwich2(J: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """(N, 2, 2) ``J_n C_n J_n^T`` of ``J: (N, 2, k)`` and symmetric ``C: (N, k, k)`` (one stacked
-    product instead of two; the result exactly symmetric)."""
-    J = check_array("J", J, (None, 2, None))
-    C = check_array("C", C, (len(J), J.shape[2], J.shape[2]))
-    W = J @ C
-    S = np.empty((len(J), 2, 2))
-    S[:, 0, 0] = np.einsum("ij,ij->i", W[:, 0], J[:, 0])
-    S[:, 1, 1] = np.einsum("ij,ij->i", W[:, 1], J[:, 1])
-    S[:, 0, 1] = S[:, 1, 0] = np.einsum("ij,ij->i", W[:, 0], J[:, 1])
-    return S
-
-
-def _normal_terms(J: np.ndarray, S_inv: np.ndarray, r: np.ndarray | None = None):
-    """Per observation, row by row in closed form, of ``J: (N, 2, 3)``, symmetric ``S_inv: (N, 2, 2)``
-    and ``r: (N, 2)``: ``J^T S^-1 J: (N, 3, 3)``, ``J^T S^-1 r: (N, 3)`` (None without ``r``) and
-    ``J^T S^-1: (N, 3, 2)``."""
-    j0, j1 = J[:, 0], J[:, 1]
-    s00, s01, s11 = S_inv[:, 0, 0, None], S_inv[:, 0, 1, None], S_inv[:, 1, 1, None]
-    JtS = np.empty((len(J), 3, 2))
-    w0 = JtS[:, :, 0] = s00 * j0 + s01 * j1
-    w1 = JtS[:, :, 1] = s01 * j0 + s11 * j1
-    H = j0[:, :, None] * w0[:, None, :] + j1[:, :, None] * w1[:, None, :]
-    return H, None if r is None else w0 * r[:, :1] + w1 * r[:, 1:], JtS
-
-
-def pose_jacobian(p_c) -> np.ndarray:
-    """(N, 3, 6) d(point in camera)/d xi for ``T_w_c * Exp(xi)``, at ``p_c: (N, 3)`` metres.
-
-    ``xi = (rotation rad, translation m)`` in the camera frame (GTSAM's ``Pose3``
-    retraction): the camera point moves by ``p_c x omega - nu`` to first order.
-    """
-    p_c = check_array("p_c", p_c, (None, 3))
-    J = np.zeros((len(p_c), 3, 6))
-    J[:, :, :3] = _skew_batch(p_c)
-    J[:, :, 3:] = -_EYE3
-    return J
 
 
 def _project(R_cw, d_w, fx, fy, cx, cy, ideal):
@@ -406,7 +315,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
             p_c, r = pc_all[o], r_all[o]
             S_o, R_o, c_o, fx_o, fy_o = S_inv[o], R_cw[o], centres[o], fx[o], fy[o]
             use = inlier[o] & (p_c[:, 2] > 0)
-            H_o, g_o, _ = _normal_terms(point_jacobian(p_c, fx_o, fy_o, R_o), S_o, finite(r))
+            H_o, g_o, _ = normal_terms(point_jacobian(p_c, fx_o, fy_o, R_o), S_o, finite(r))
             wts = use.astype(float)
             H = sum_by(tc, wts[:, None, None] * H_o, n)
             g = sum_by(tc, wts[:, None] * g_o, n)
@@ -460,7 +369,7 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     n_in = np.bincount(t, weights=inlier.astype(float), minlength=n_tracks).astype(np.int64)
     mark(n_in < 2, TrackStatus.REPROJECTION)
 
-    H_o, _, JtS = _normal_terms(point_jacobian(p_c, fx, fy, R_cw), S_inv)
+    H_o, _, JtS = normal_terms(point_jacobian(p_c, fx, fy, R_cw), S_inv)
     H = sum_by(t, inlier[:, None, None] * H_o, n_tracks)
     cov_w = inv3(H)[0]
 

@@ -24,16 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from triangulation.batched import inv2, quad2
-from triangulation.multiview import (
-    MultiviewPoints,
-    MultiviewSettings,
-    TrackStatus,
-    depth_in_view,
-    image_pose_jacobian,
-    point_jacobian,
-    sandwich2,
-    triangulate_tracks,
-)
+from triangulation.jacobians import image_pose_jacobian, point_jacobian, sandwich2
+from triangulation.multiview import MultiviewPoints, MultiviewSettings, TrackStatus, depth_in_view, triangulate_tracks
 from vio_core.checks import check_array
 
 from .tracks import Observations, TrackTable

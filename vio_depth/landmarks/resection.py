@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from triangulation.batched import inv2, quad2
-from triangulation.multiview import image_pose_jacobian, point_jacobian, sandwich2
+from triangulation.jacobians import image_pose_jacobian, point_jacobian, sandwich2
 from vio_core.camera import Camera
 from vio_core.checks import check_array, check_transform
 

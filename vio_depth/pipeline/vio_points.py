@@ -38,7 +38,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from matchers import Features, Matcher
-from triangulation.multiview import pose_jacobian
+from triangulation.jacobians import pose_jacobian
 from vio_core.camera import Camera
 from vio_core.errors import SettingsError
 
