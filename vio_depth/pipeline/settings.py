@@ -46,8 +46,9 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: between keyframes are bridged again only when the window learnt their keyframe pair better,
 #: not after every update, and the lag is 4 frames: docs/benchmarks.md "vio_realtime's worker:
 #: iSAM2, and bridges only when learnt better"; and the tracks a keyframe only extends are gated
-#: against their points before the refinement instead of triangulated twice: "The worker's
-#: keyframe update, 2026-12-07 (late)"). They live here, above
+#: against their points before the refinement instead of triangulated twice, and at most 600
+#: landmarks (not 800) enter its refinement: "The worker's keyframe update, 2026-12-07 (late)").
+#: They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
@@ -55,7 +56,8 @@ POSE_PRESETS: Presets = Presets("pose source", {
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
     "vio": VioSettings(),
     "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
-                                window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True),
+                                window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True,
+                                               ba_max_landmarks=600),
                                 bridge_every_update=False),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
@@ -63,8 +65,8 @@ POSE_PRESETS: Presets = Presets("pose source", {
     "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
                     "(calibrated on EuRoC V1_01)",
     "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
-    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 4 frames later, iSAM2), KLT "
-                    "tracks; drifts more outdoors, fewer frames get depth",
+    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 4 frames later, iSAM2, "
+                    "600 landmarks), KLT tracks; drifts more outdoors, fewer frames get depth",
 })
 
 

@@ -60,6 +60,7 @@ def test_each_pose_preset_builds_its_source_from_its_settings_type():
     # and only that, iSAM2 and bridges once (docs/benchmarks.md "vio_realtime's worker ...")
     assert realtime.window.solver == "isam2" and VioSettings().window.solver == "batch"
     assert realtime.window.gate_extended_tracks and not VioSettings().window.gate_extended_tracks
+    assert realtime.window.ba_max_landmarks == 600 and VioSettings().window.ba_max_landmarks == 800
     assert realtime.bridge_every_update is False and VioSettings().bridge_every_update is True
     assert replace(realtime, backend=VioSettings().backend, window=VioSettings().window,
                    bridge_every_update=True) == VioSettings()
