@@ -59,10 +59,7 @@ def _compare(obs: Observations, old_obs: Observations):
 def reusable_tracks(obs: Observations, old_obs: Observations | None, old: MultiviewPoints | None) -> np.ndarray:
     """(M,) bool: the observations of ``obs`` whose track has exactly the same observations
     (same track id, keyframes and keypoints) in ``old_obs``, triangulated into ``old``."""
-    if old is None or old_obs is None or not len(obs) or not len(old_obs):
-        return np.zeros(len(obs), bool)
-    _, _, t, n_new, n_same, n_old = _compare(obs, old_obs)
-    return ((n_same == n_new) & (n_old == n_new))[t]
+    return _reuse_and_extend(obs, old_obs, old, None)[0]
 
 
 def extended_tracks(obs: Observations, old_obs: Observations | None, old: MultiviewPoints | None,
@@ -70,13 +67,24 @@ def extended_tracks(obs: Observations, old_obs: Observations | None, old: Multiv
     """(M,) bool: the observations in keyframe ``frame`` that extend a track of an earlier
     triangulation by one: the rest of the track is exactly its observations in ``old_obs``, and
     ``old`` gave it a point (VALID or UNCERTAIN)."""
+    return _reuse_and_extend(obs, old_obs, old, frame)[1]
+
+
+def _reuse_and_extend(obs: Observations, old_obs: Observations | None, old: MultiviewPoints | None,
+                      frame: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`reusable_tracks` and :func:`extended_tracks` (all False without ``frame``) from one
+    comparison of the observations."""
+    none = np.zeros(len(obs), bool)
     if old is None or old_obs is None or not len(obs) or not len(old_obs):
-        return np.zeros(len(obs), bool)
+        return none, none
     same, ids, t, n_new, n_same, n_old = _compare(obs, old_obs)
+    reuse = ((n_same == n_new) & (n_old == n_new))[t]
+    if frame is None:
+        return reuse, none
     r = np.clip(np.searchsorted(old.track_ids, ids), 0, max(len(old.track_ids) - 1, 0))
     defined = (old.track_ids[r] == ids) & np.isin(old.status[r], (TrackStatus.VALID, TrackStatus.UNCERTAIN))
     track_ok = defined & (n_same == n_old) & (n_new == n_old + 1)
-    return track_ok[t] & ~same & (obs.frame == frame)
+    return reuse, track_ok[t] & ~same & (obs.frame == frame)
 
 
 def merge_points(obs: Observations, fresh: np.ndarray, new: MultiviewPoints, old_obs: Observations,
@@ -96,8 +104,8 @@ def merge_points(obs: Observations, fresh: np.ndarray, new: MultiviewPoints, old
         extension: their :class:`Extension` (with ``extended``).
 
     Returns:
-        :class:`MultiviewPoints` (the extended tracks' point and covariance are ``old``'s; their
-        ``n_inliers``, ``relative_sigma`` and status count the new inliers: :func:`_extend`).
+        :class:`MultiviewPoints`; the extended tracks' rows are ``old``'s (point, covariance,
+        ``n_inliers``, status): :func:`_extend` then counts the new inliers into them.
     """
     added = np.zeros(len(obs), bool) if extended is None else extended
     kept = ~fresh & ~added
@@ -127,15 +135,14 @@ def merge_points(obs: Observations, fresh: np.ndarray, new: MultiviewPoints, old
         return out
 
     e = extension
-    out = MultiviewPoints(track_ids[perm], tracks(new.points_w, old.points_w),
-                          tracks(new.covariance_w, old.covariance_w), tracks(new.status, old.status),
-                          tracks(new.n_inliers, old.n_inliers), tracks(new.max_angle_deg, old.max_angle_deg),
-                          obs_track, per_obs(new.inlier, old.inlier, None if e is None else e.inlier),
-                          per_obs(new.residual_px, old.residual_px, None if e is None else e.residual_px),
-                          per_obs(new.depth, old.depth, None if e is None else e.depth),
-                          per_obs(new.sigma_depth, old.sigma_depth, None if e is None else e.sigma_depth),
-                          tracks(new.relative_sigma, old.relative_sigma))
-    return out
+    return MultiviewPoints(track_ids[perm], tracks(new.points_w, old.points_w),
+                           tracks(new.covariance_w, old.covariance_w), tracks(new.status, old.status),
+                           tracks(new.n_inliers, old.n_inliers), tracks(new.max_angle_deg, old.max_angle_deg),
+                           obs_track, per_obs(new.inlier, old.inlier, None if e is None else e.inlier),
+                           per_obs(new.residual_px, old.residual_px, None if e is None else e.residual_px),
+                           per_obs(new.depth, old.depth, None if e is None else e.depth),
+                           per_obs(new.sigma_depth, old.sigma_depth, None if e is None else e.sigma_depth),
+                           tracks(new.relative_sigma, old.relative_sigma))
 
 
 @dataclass(frozen=True)
@@ -255,10 +262,10 @@ def triangulate_window(tracks: TrackTable, frame_ids, cameras, poses, covariance
     fresh = np.ones(len(obs), bool)
     extended = extension = None
     if previous is not None:
-        fresh = ~reusable_tracks(obs, *previous)
+        reuse, extended = _reuse_and_extend(obs, *previous, None if gate_frame is None else int(gate_frame))
+        fresh = ~reuse
         fresh |= np.isin(obs.track, obs.track[np.isin(obs.frame, list(fresh_frames))])
         if gate_frame is not None:
-            extended = extended_tracks(obs, *previous, int(gate_frame))
             fresh &= ~np.isin(obs.track, obs.track[extended])
             extension = gate_extensions(obs, np.nonzero(extended)[0], view, previous[1], list(cameras), T, C, settings)
     res = triangulate_tracks(obs.track[fresh], view[fresh], obs.uv[fresh], list(cameras), T, settings, C)

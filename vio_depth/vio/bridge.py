@@ -36,9 +36,13 @@ _REINTEGRATE = (0.05, 0.005)
 RE_BRIDGE_SHRINK = 0.8
 
 
-def _pair_sigmas(w: LandmarkWindow, a: int, b: int) -> np.ndarray:
-    """(2,) 1-sigma of keyframes ``a`` and ``b``'s relative rotation (rad) and translation (m) in ``w``."""
-    C = PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
+def _pair_covariance(w: LandmarkWindow, a: int, b: int) -> np.ndarray:
+    """(6, 6) covariance of keyframes ``a`` and ``b``'s relative pose in ``w`` (rotation rad, then m)."""
+    return PoseHistory.pair_covariance(w.pose(a), w.pose(b), w.joint_covariance([a, b]), 0, 1)
+
+
+def _sigmas(C: np.ndarray) -> np.ndarray:
+    """(2,) 1-sigma of a (6, 6) relative pose covariance's rotation (rad) and translation (m)."""
     return np.sqrt(np.maximum([np.trace(C[:3, :3]), np.trace(C[3:, 3:])], 0.0))
 
 
@@ -109,14 +113,15 @@ class FrameBridges:
         groups: dict[tuple[int, int], list[tuple[int, float]]] = {}
         for f, t, a, b in keep:
             groups.setdefault((a, b), []).append((f, t))
-        sigmas = {}
+        sigmas, covs = {}, {}
         if not self.every_update:
-            sigmas = {g: _pair_sigmas(window, *g) for g in groups}
+            covs = {g: _pair_covariance(window, *g) for g in groups}  # (reused by _poses)
+            sigmas = {g: _sigmas(C) for g, C in covs.items()}
             groups = {g: frames for g, frames in groups.items()
                       if g not in self._done or np.any(sigmas[g] < RE_BRIDGE_SHRINK * self._done[g])}
         posed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for (a, b), frames in groups.items():
-            posed.update(self._poses(window, est, times, a, b, frames))
+            posed.update(self._poses(window, est, times, a, b, frames, covs.get((a, b))))
         for f, _, _, b in keep:  # in the bridged order, as the history keeps its frames in order
             if f in posed:  # anchored to the later keyframe, which stays in the window longer
                 history.add_frame(f, session, b, *posed[f])
@@ -142,11 +147,13 @@ class FrameBridges:
         return self._poses(window, window.estimate, times, a, b, [(0, t)]).get(0, (None, None))
 
     def _poses(self, w: LandmarkWindow, est, times: Mapping[int, float], a: int, b: int,
-               frames: list[tuple[int, float]]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+               frames: list[tuple[int, float]], C_ab: np.ndarray | None = None
+               ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """:meth:`pose` of every frame ``(id, t)`` between keyframes ``a`` and ``b`` at once (the
         IMU prediction per frame, the bridge and the covariance as stacks): ``{id: (T_w_f,
-        covariance)}`` of the frames that could be posed."""
-        st, shared = self._pair(w, est, times, a, b)
+        covariance)}`` of the frames that could be posed. ``C_ab``: the pair's relative pose
+        covariance (:func:`_pair_covariance`) when the caller has it already, else None."""
+        st, shared = self._pair(w, est, times, a, b, C_ab)
         if shared is None or not frames:
             return {}
         dR, dp, T_w_b, C_ab = shared
@@ -175,7 +182,8 @@ class FrameBridges:
         C = 0.5 * (C + np.swapaxes(C, 1, 2))
         return {f: (T_w_f[k], C[k]) for k, f in enumerate(ids)}
 
-    def _pair(self, w: LandmarkWindow, est, times: Mapping[int, float], a: int, b: int):
+    def _pair(self, w: LandmarkWindow, est, times: Mapping[int, float], a: int, b: int,
+              C_ab: np.ndarray | None = None):
         """What the frames between keyframes ``a`` and ``b`` share: ``(a's state, (mismatch
         rotation vector, mismatch translation, T_w_b, covariance of a and b relative to each
         other) or None)``."""
@@ -185,7 +193,7 @@ class FrameBridges:
         if end_b is not None:
             T_b = self.factors.state_of(est, b, times[b]).T_w_i
             T_w_b = w.pose(b)
-            C_ab = PoseHistory.pair_covariance(w.pose(a), T_w_b, w.joint_covariance([a, b]), 0, 1)
+            C_ab = _pair_covariance(w, a, b) if C_ab is None else C_ab
             # the mismatch at b (rotation vector, translation), the same for all the pair's frames
             dR = Rotation.from_matrix(T_b[:3, :3] @ end_b.T_w_i[:3, :3].T).as_rotvec()
             shared = (dR, T_b[:3, 3] - end_b.T_w_i[:3, 3], T_w_b, C_ab)

@@ -103,9 +103,9 @@ def test_frames_between_keyframes_bridged_again_only_when_learnt_better(moving, 
     posed: list[tuple[int, int]] = []
     poses = FrameBridges._poses
 
-    def count(self, w, est, times, a, b, frames):
+    def count(self, w, est, times, a, b, frames, *rest):
         posed.append((a, b))
-        return poses(self, w, est, times, a, b, frames)
+        return poses(self, w, est, times, a, b, frames, *rest)
 
     monkeypatch.setattr(FrameBridges, "_poses", count)
     _run(scene)  # the eager default, counted the same way
