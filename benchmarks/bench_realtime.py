@@ -113,6 +113,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import gc
 import itertools
 import os
 import platform
@@ -529,6 +530,7 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
         warm = StreamRunner(ds, 0, matcher, edge_guard, points, backend, window, poses)
         for i in range(min(warmup, len(ds))):
             warm(i)
+        warm.stream.close()  # its worker process, if any, stops now, not within the timed row
         del warm
     runner = StreamRunner(ds, PREFETCH_THREADS if prefetch else 0, matcher, edge_guard, points, backend, window,
                           poses)
@@ -539,6 +541,9 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
     process_backend = backend is not None and backend.kind == "process"
     if process_backend and not prefetch:  # the worker runs beside the pushes: nothing else in their wall time
         runner.preload()
+    # the earlier rows' pipelines are object cycles: collected now, not by a 40-90 ms pause of the
+    # garbage collector within this row's frames (it happened in every row after an earlier one)
+    gc.collect()
     reset_peak_rss()
     if prefetch:
         with opencv_threads(1), blas_threads(1), TorchThreads(1):
@@ -558,6 +563,7 @@ def pipeline_row(ds: data.StreamData, rate_scale: float | None, queue_size: int,
     default = matcher == "sift" and points is None and not process_backend and not window and poses in (None, "vio")
     rss = peak_rss_mib()
     rss = None if rss is None else rss - runner.held_mib()  # (preloaded rows: the frames and kept depth maps out)
+    runner.stream.close()
     runner.score_deferred()
     return Row(ds.name, ds.size, ds.poses, mode, len(ds), result, runner.with_depth, stage_means(runner),
                rss, dict(runner.statuses), label, list(runner.posed), runner.ate_m(),

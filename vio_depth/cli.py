@@ -375,6 +375,8 @@ def _cmd_run(args) -> int:
         if (staging / JOURNAL_NAME).is_file() and not isinstance(exc, OutputFolderError):
             exc.vio_depth_note = f"; the partial run is kept in {staging} (--resume continues it)"
         raise
+    finally:
+        pipeline.close()  # its worker processes, if any
     if summary.resumed_frames == -1:
         print(f"{args.out}: already holds this finished run; nothing to resume")
     print(format_table(summary))

@@ -156,6 +156,11 @@ class ProcessWindow:
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
     @property
+    def alive(self) -> bool:
+        """The worker process runs (False after :meth:`close`, or when it died)."""
+        return self._proc.is_alive()
+
+    @property
     def pending(self) -> int:
         """Keyframe submissions whose results were not taken yet (0: none)."""
         return self._pending

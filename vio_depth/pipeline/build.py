@@ -48,10 +48,18 @@ class PoseStage:
         source: gives the relative poses.
         tracker: the same source when it estimates the poses from the frames (``vio``: the
             pipeline hands it every frame with its features first), else None.
+        workers: the worker processes started for the source (``vio`` with a ``process``
+            backend); whoever built the stage stops them (:meth:`close`).
     """
 
     source: PoseSource
     tracker: TrackingPoseSource | None = None
+    workers: tuple[ProcessWindow, ...] = ()
+
+    def close(self) -> None:
+        """Stop the stage's worker processes (the source is unusable after it)."""
+        for worker in self.workers:
+            worker.close()
 
     @classmethod
     def of(cls, source: PoseSource) -> "PoseStage":
@@ -76,6 +84,12 @@ class Stages:
     poses: PoseStage
     disparity_source: DisparitySource
     points: PointsStage | None
+
+    @property
+    def points_workers(self) -> tuple[ProcessWindow, ...]:
+        """The worker process the points stage keeps its window in (``landmarks_backend``), if any."""
+        worker = self.points.worker if isinstance(self.points, LandmarkPointsStage) else None
+        return () if worker is None else (worker,)
 
 
 def tracks_frames(settings: PoseSettings) -> bool:
@@ -118,7 +132,9 @@ def build_pose_stage(settings: PoseSettings | str, sequence=None, matcher: Match
         case VioSettings():
             matcher = create_matcher("sift") if matcher is None else matcher
             if stream is None:
-                source = VioPoseSource.for_sequence(sequence, settings, matcher)
+                VioPoseSource.check_sequence(sequence)
+                worker = ProcessWindow() if settings.backend.kind == "process" else None
+                source = VioPoseSource(sequence.imu, matcher, settings, worker)
             else:
                 _require_calibration(stream, "vio")
                 import_gtsam()  # now, not at the first frame
@@ -130,7 +146,7 @@ def build_pose_stage(settings: PoseSettings | str, sequence=None, matcher: Match
                     worker.ping()
                 source = LazyImuPoses("vio", stream, lambda imu: VioPoseSource(imu, matcher, settings, worker),
                                       matcher)
-            return PoseStage(source, source)
+            return PoseStage(source, source, () if worker is None else (worker,))
         case _:
             raise SettingsError(f"no pose source for settings of type {type(settings).__name__}; valid: "
                                 "GroundTruthPoseSettings, ImuPoseSettings, VioSettings "

@@ -57,6 +57,8 @@ class LandmarkPointsStage:
                  consistency: ConsistencySettings = ConsistencySettings(), backend: ProcessWindow | None = None,
                  backend_settings: WindowBackendSettings = POINTS_WINDOW_BACKEND):
         self.matcher = matcher
+        #: the worker process the window is kept in (None: this process); its builder stops it
+        self.worker = backend
         self.estimator = LandmarkEstimator(settings, matcher, None, backend, backend_settings, start_inline=True)
         self.uncertainty = uncertainty
         self.consistency = consistency

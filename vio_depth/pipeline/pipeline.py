@@ -65,6 +65,8 @@ class Pipeline:
         self.disparity_source = stages.disparity_source
         self.rescaler = Rescaler(settings.rescaler)
         self.points = stages.points
+        # the worker processes this pipeline started (:meth:`close`): a given pose stage's are its giver's
+        self._workers = (stages.poses.workers if pose_source is None else ()) + stages.points_workers
         self._imu_of = imu_of
         matcher = self.matcher
         #: a tracking matcher's in-order extraction with its rotation prediction (None for other matchers)
@@ -92,6 +94,26 @@ class Pipeline:
             settings = replace(settings, landmarks_backend=replace(settings.landmarks_backend, kind="inline"))
         return Pipeline(settings, self.poses, self.disparity_source, sequence=self.sequence,
                         matcher=self.matcher, imu_of=self._imu_of)
+
+    @property
+    def workers(self) -> tuple:
+        """The worker processes (:class:`~vio_depth.landmarks.ProcessWindow`) this pipeline started
+        and :meth:`close` stops (a pose stage handed in keeps its own)."""
+        return self._workers
+
+    def close(self) -> None:
+        """Stop the worker processes this pipeline started (a ``process`` backend of the
+        odometry's or the points window): it processes no frame after this. Without it they stop
+        when the pipeline is garbage-collected (at a moment no frame chooses: a collection
+        of the pipeline's object cycles takes tens of ms) or with the interpreter."""
+        for worker in self._workers:
+            worker.close()
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     # ------------------------------------------------------------------ per frame
     def process(self, frame: Frame) -> FrameResult:

@@ -76,7 +76,8 @@ class FrameStream:
             thread pools (OpenCV, BLAS, torch) are left as they are:
             on 2 cores, ``cv2.setNumThreads(1)`` with ``prefetch=2`` is what the CLI run does.
 
-    A stream with a :meth:`submit` in flight holds threads: :meth:`close` it (or use it as a
+    A stream holds threads once a frame was submitted, and with a ``process`` backend
+    (``--poses vio_realtime``) a worker process from the start: :meth:`close` it (or use it as a
     context manager) when done.
     """
 
@@ -89,7 +90,7 @@ class FrameStream:
         self._disparity = _GivenDisparity()
         self._inputs = StreamInputs(pose_kind, imu_calibration)
         matcher = build_matcher(settings)
-        poses = build_pose_stage(settings.poses, matcher=matcher, stream=self._inputs)
+        poses = self._poses = build_pose_stage(settings.poses, matcher=matcher, stream=self._inputs)
         self.pipeline = Pipeline(settings, poses, self._disparity, matcher=matcher, imu_of=lambda: self._inputs.imu)
         self._pose_source = poses.source
         if isinstance(prefetch, bool) or not isinstance(prefetch, int) or prefetch < 0:
@@ -100,10 +101,17 @@ class FrameStream:
         self._last_t = -np.inf
         self._extract: ThreadPoolExecutor | None = None
         self._ordered: ThreadPoolExecutor | None = None
+        self._closed = False
 
     @property
     def settings(self) -> PipelineSettings:
         return self.pipeline.settings
+
+    @property
+    def workers(self) -> tuple:
+        """The worker processes (:class:`~vio_depth.landmarks.ProcessWindow`) the stream started
+        (``vio_realtime``'s window; a ``process`` points window); :meth:`close` stops them."""
+        return self._poses.workers + self.pipeline.workers
 
     def push(self, image, disparity, *, timestamp: float | None = None, T_w_c=None, imu=None,
              gt_depth=None) -> FrameResult:
@@ -149,12 +157,16 @@ class FrameStream:
         return self._ordered.submit(self._process, *accepted, features)
 
     def close(self) -> None:
-        """Wait for the submitted frames and stop the stream's threads (a later :meth:`submit`
-        starts them again)."""
+        """Wait for the submitted frames, then stop the stream's threads and worker processes;
+        the stream takes no frame after this (:class:`InputError`). Closing twice is harmless."""
         for pool in (self._ordered, self._extract):
             if pool is not None:
                 pool.shutdown(wait=True)
         self._ordered = self._extract = None
+        if not self._closed:
+            self._closed = True
+            self.pipeline.close()
+            self._poses.close()
 
     def __enter__(self) -> "FrameStream":
         return self
@@ -165,6 +177,8 @@ class FrameStream:
     # ------------------------------------------------------------------ internals
     def _accept(self, image, disparity, timestamp, T_w_c, imu, gt_depth):
         """The checked inputs of the next frame (in the caller's thread), its index taken."""
+        if self._closed:
+            raise InputError("the stream is closed (FrameStream.close): make a new one for more frames")
         image = np.asarray(image)
         if image.ndim == 2:
             image = np.repeat(image[:, :, None], 3, axis=2)

@@ -57,11 +57,16 @@ class VioPoseSource:
     @classmethod
     def for_sequence(cls, sequence, settings: VioSettings = VioSettings(), matcher: Matcher | None = None):
         """The source for ``sequence`` (its IMU). Raises :class:`InputError` without IMU samples."""
+        cls.check_sequence(sequence)
+        return cls(sequence.imu, create_matcher("sift") if matcher is None else matcher, settings)
+
+    @staticmethod
+    def check_sequence(sequence) -> None:
+        """Raises :class:`InputError` when ``sequence`` has no IMU samples."""
         if getattr(sequence, "imu", None) is None:
             why = getattr(sequence, "imu_missing_reason", "")
             raise InputError(f"{getattr(sequence, 'root', sequence)}: sequence has no IMU, so --poses vio is not "
                              f"possible{' (' + why + ')' if why else ''}")
-        return cls(sequence.imu, create_matcher("sift") if matcher is None else matcher, settings)
 
     def update_samples(self, imu: ImuData) -> None:
         """Use ``imu`` (the samples so far plus newer ones) from now on (streaming input)."""

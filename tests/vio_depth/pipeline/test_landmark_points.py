@@ -1,5 +1,6 @@
 """The landmark points stage in the pipeline: metric points from the window, records, errors."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ from vio_depth.pipeline import FrameStatus
 from vio_depth.run import RunSettings, read_frames_jsonl, run_sequence
 
 STREET = Path(__file__).resolve().parents[3] / "sample_sequences" / "street"
+ROOM = STREET.parent / "room"
 pytestmark = pytest.mark.skipif(not (STREET / "sequence.json").exists(), reason="bundled samples missing")
 
 
@@ -76,3 +78,27 @@ def test_the_window_in_a_worker_process_gives_the_frames_depth_as_the_inline_one
             assert f["points_rel_err_median"] < 0.03 and f["abs_rel"] < 0.05
     assert np.mean([f["abs_rel"] for f in worker if f["alpha"] is not None]) < \
         1.1 * np.mean([f["abs_rel"] for f in inline if f["alpha"] is not None])
+
+
+def test_close_stops_the_workers_the_pipeline_started_and_no_other():
+    """Pipeline.close stops its points window's worker; a pipeline made by ``fresh`` (the
+    offline backward pass) shares its maker's pose stage and stops none of its workers."""
+    seq = open_sequence(STREET)
+    base = PipelineSettings.from_presets(points="landmarks")
+    settings = replace(base, landmarks_backend=replace(base.landmarks_backend, kind="process"))
+    with Pipeline(settings, sequence=seq) as pipe:
+        (worker,) = pipe.workers
+        assert worker.alive
+        backward = pipe.fresh(inline_window=True)
+        assert backward.workers == ()
+        backward.close()
+        assert worker.alive
+    assert not worker.alive
+
+    room = open_sequence(ROOM)
+    pipe = Pipeline(PipelineSettings.from_presets(poses="vio_realtime", pairing="indoor"), sequence=room)
+    (odometry_worker,) = pipe.workers
+    pipe.fresh().close()
+    assert odometry_worker.alive
+    pipe.close()
+    assert not odometry_worker.alive

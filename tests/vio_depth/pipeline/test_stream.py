@@ -257,3 +257,22 @@ def test_stream_inputs_forget_frames_and_samples_before_a_time():
     uncalibrated = StreamInputs()
     uncalibrated.add_imu(np.array([0.0]), np.zeros((1, 3)), np.zeros((1, 3)))
     assert uncalibrated.imu is None  # nothing could read them: not kept
+
+
+def test_close_stops_the_streams_worker_process_and_refuses_later_frames():
+    """With the odometry's window in a worker (``vio_realtime``), closing the stream stops the
+    worker then and there: before, it lived until the garbage collector reached the dropped
+    stream's object cycles, a 40-90 ms pause inside whatever frame was being processed then
+    (benchmarks/bench_realtime.py timed rows after other rows' leftovers)."""
+    seq, pushes = _room_vio_pushes(4)
+    settings = PipelineSettings.from_presets(poses="vio_realtime", pairing="indoor")
+    stream = FrameStream(seq.camera, settings, imu_calibration=seq.imu)
+    (worker,) = stream.workers
+    assert worker.alive
+    for img, d, kw in pushes[:3]:
+        stream.push(img, d, **kw)
+    stream.close()
+    assert not worker.alive
+    with pytest.raises(InputError, match="closed"):
+        stream.push(pushes[3][0], pushes[3][1], **pushes[3][2])
+    stream.close()  # twice: harmless
