@@ -21,6 +21,7 @@ from ..frame import Frame, ImuData
 from ..poses import GroundTruthPoseSettings, PoseSource, TrackingPoseSource
 from ..rescale import Rescaler, disparity_spread, sample_bilinear
 from .build import PoseStage, build_stages
+from .point_source import PointSourceKind
 from .result import FrameResult, PointsOutcome, PreparedFrame
 from .settings import PipelineSettings
 from .status import FrameStatus, decide_frame_status
@@ -82,16 +83,21 @@ class Pipeline:
         """The matcher that extracts every frame's features (None when no stage needs features)."""
         return self.points.matcher if self.points is not None else self._matcher
 
-    def fresh(self, inline_window: bool = False) -> "Pipeline":
+    def fresh(self, inline_window: bool = False, offline_points: bool = False) -> "Pipeline":
         """A new pipeline with the same settings, sources and matcher, and no history.
 
         ``inline_window``: its points window (``--points landmarks``) runs in this process
         whatever ``landmarks_backend`` says -- for the offline backward pass over a few frames,
         where a worker would only add its start (1-3 s) and a second process beside the first
-        pipeline's."""
+        pipeline's. ``offline_points``: the odometry's own landmarks (``--points vio``) become
+        two-view points (``sfm``) with the odometry's poses -- for the backward pass, whose frames
+        the odometry posed only afterwards (an initialisation's, while its scale converged) and
+        so never matched against its landmarks."""
         settings = self.settings
         if inline_window and settings.landmarks_backend.kind != "inline":
             settings = replace(settings, landmarks_backend=replace(settings.landmarks_backend, kind="inline"))
+        if offline_points and settings.points.kind == PointSourceKind.VIO:
+            settings = replace(settings, points=replace(settings.points, kind=PointSourceKind.SFM))
         return Pipeline(settings, self.poses, self.disparity_source, sequence=self.sequence,
                         matcher=self.matcher, imu_of=self._imu_of)
 

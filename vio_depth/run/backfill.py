@@ -46,7 +46,9 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
                                          FrameStatus.CORRUPT_IMAGE)]
     if not lead:
         return {}
-    backward = pipeline.fresh(inline_window=True)  # a few frames, offline: a worker would only add its start
+    # a few frames, offline: a worker would only add its start; the odometry's landmarks (--points vio)
+    # exist only for frames it tracked live, which the leading ones were not: two-view points instead
+    backward = pipeline.fresh(inline_window=True, offline_points=True)
     last = min(n - 1, lead[-1] + 2 * pipeline.settings.pairing.buffer_size)
     out = {}
     features = {} if features is None else features
