@@ -38,7 +38,7 @@ from .experiments import add_eval_parser, format_results, request_from_args, run
 from .export import parse_depth_range, parse_ply_spec
 from .io import available_formats
 from .pipeline import (POINT_SPEC_FORMS, POSE_PRESETS, PRESET_FAMILIES, Pipeline, PipelineSettings,
-                       default_matcher_preset, parse_points_spec)
+                       default_matcher_preset, default_points_spec, parse_points_spec)
 from .poses import POSE_UNCERTAINTY_PRESETS, GroundTruthPoseSettings
 from .report import build_report
 from .run import (
@@ -101,8 +101,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")
     g.add_argument("--points", default=None,
-                   help="metric point source: sfm (default), landmarks (a gtsam landmark window), vio (the "
-                        "odometry's own landmarks, with --poses vio), or lidar:N / random:N sampled from ground truth")
+                   help="metric point source: sfm (default; vio with --poses vio_realtime), landmarks (a gtsam "
+                        "landmark window), vio (the odometry's own landmarks, with --poses vio or vio_realtime), or "
+                        "lidar:N / random:N sampled from ground truth")
     g.add_argument("--seed", type=int, default=None, help="seed of RANSAC, random reference points and "
                                                           "the SIMULATED disparity (default 0)")
     d = p.add_argument_group("disparity")
@@ -332,7 +333,8 @@ def _cmd_presets() -> int:
     print("pose uncertainty (--pose-uncertainty; default: the sequence's kind of poses):")
     for name in POSE_UNCERTAINTY_PRESETS:
         print(f"  {name:20s} {POSE_UNCERTAINTY_PRESETS.describe(name)}")
-    print("points:\n  " + ", ".join(POINT_SPEC_FORMS))
+    with_poses = [p for p in POSE_PRESETS if default_points_spec(POSE_PRESETS[p]) != "sfm"]
+    print("points:\n  " + ", ".join(POINT_SPEC_FORMS) + "   (default: sfm; vio with --poses " + ", ".join(with_poses) + ")")
     print("disparity:\n  " + ", ".join(DISPARITY_CHOICES) + "   (simulation presets: " + ", ".join(disparity_presets()) + ")")
     print("formats:\n  " + ", ".join(available_formats()))
     return 0

@@ -36,7 +36,8 @@ from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, pa
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
 from .settings import (POSE_PRESETS, PRESET_FAMILIES, TRACKER_DEFAULTS, PipelineSettings, PoseSettings,
-                       chooses_preset, default_matcher_preset, with_tracker_defaults)
+                       chooses_preset, default_matcher_preset, default_points_spec,
+                       with_tracker_defaults)
 from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
 from .stream import FrameStream
@@ -60,6 +61,7 @@ __all__ = [
     "PipelineSettings",
     "chooses_preset",
     "default_matcher_preset",
+    "default_points_spec",
     "with_tracker_defaults",
     "PointSourceKind",
     "PointSourceSpec",

@@ -126,6 +126,25 @@ def default_matcher_preset(poses: PoseSettings) -> str:
     return "sift"
 
 
+def default_points_spec(poses: PoseSettings) -> str:
+    """The ``--points`` source a run uses with the pose source ``poses`` when nothing names one
+    (the command line's ``--points``, a config file's ``points``).
+
+    ``vio`` (the odometry's own landmarks) with the odometry's window in a worker process
+    (``vio_realtime``): the camera-rate configuration, and two-view points would match and
+    triangulate every frame a second time. On the 752x564 generated ASL loop (SIMULATED, 2-core
+    machine, 2026-12-07) ``vio_realtime`` made 22.7 frames/s as fast as possible with its own
+    landmarks against 16.9 with two-view points (at 20 Hz 4 against 76 frames dropped), as many
+    frames with depth (314 vs 317 of 400) and AbsRel 0.0021 vs 0.0024; offline, where the backward
+    pass gives the leading frames two-view points, street 105/130 frames either way, AbsRel 0.0209
+    vs 0.0201, room 0.0134 vs 0.0132, none wrong (docs/benchmarks.md "vio_realtime brings its
+    landmarks"). ``sfm`` (two-view) with every other pose source: with ``vio`` (sift, inline) the
+    odometry's landmarks wrote 2 street frames wrong where two-view wrote none."""
+    if isinstance(poses, VioSettings) and poses.backend.kind == "process":
+        return "vio"
+    return "sfm"
+
+
 @dataclass(frozen=True)
 class PipelineSettings:
     """Everything that shapes a pipeline, one settings object per stage.

@@ -18,7 +18,7 @@ which read back gives the same settings::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -27,7 +27,7 @@ from vio_core.limits import MAX_CONFIG_BYTES, read_limited, too_large
 from vio_core.settings import override, to_plain, toml_dumps, toml_loads
 
 from ..export import ExportSettings
-from ..pipeline import PipelineSettings, chooses_preset, default_matcher_preset
+from ..pipeline import PipelineSettings, chooses_preset, default_matcher_preset, default_points_spec, parse_points_spec
 from ..poses import PoseCalibrationSettings
 from .verdict import MIN_DEPTH_FRACTION
 
@@ -168,7 +168,9 @@ def resolve_config(presets: Mapping[str, str], data: Mapping[str, Any] | None = 
     matcher is ``default_matcher`` or, when that is None,
     :func:`~vio_depth.pipeline.default_matcher_preset` of the pose source the flags and the
     file choose (``klt`` with the sequence's poses, ``sift`` otherwise); a ``[matcher]`` table
-    without ``preset`` refines that matcher.
+    without ``preset`` refines that matcher. When the file names no ``points``, they are
+    :func:`~vio_depth.pipeline.default_points_spec` of the pose source (``vio`` with
+    ``vio_realtime``, ``sfm`` otherwise).
 
     Args:
         source: the file's name, prefixed to its errors.
@@ -188,6 +190,13 @@ def resolve_config(presets: Mapping[str, str], data: Mapping[str, Any] | None = 
     base = PipelineSettings.from_presets(**chosen, **({} if implied is None else {"matcher": implied}))
     try:
         pipeline, run = config_from_dict(data, base)
+        named = data.get("points")
+        if named is None or (isinstance(named, Mapping) and "source" not in named):
+            # the points follow the pose source too (the --points flag comes after; a table without a
+            # source refines the default, as for the matcher)
+            points = default_points_spec(pipeline.poses)
+            if points != pipeline.points.kind.value:
+                pipeline = replace(pipeline, points=parse_points_spec(points, seed=pipeline.points.seed))
     except SettingsError as exc:
         hint = ""
         if implied is not None and str(exc).startswith("unknown setting matcher."):

@@ -4,7 +4,7 @@ import pytest
 
 from matchers import KltSettings, SiftSettings
 from vio_core.errors import InputError, SettingsError
-from vio_depth.pipeline import TRACKER_DEFAULTS, default_matcher_preset
+from vio_depth.pipeline import TRACKER_DEFAULTS, default_matcher_preset, default_points_spec
 from vio_depth.pipeline.settings import POSE_PRESETS
 from vio_depth.run import load_config, read_config, resolve_config
 
@@ -74,3 +74,17 @@ def test_vio_realtime_is_vio_with_the_window_in_a_worker_and_klt():
     worker = {"poses": {"backend": {"kind": "process"}}}
     assert isinstance(resolve_config({"poses": "vio"}, worker)[0].matcher, KltSettings)
     assert isinstance(resolve_config({"poses": "vio", "matcher": "sift"}, worker)[0].matcher, SiftSettings)
+
+
+@pytest.mark.parametrize("poses, expected", [("gt", "sfm"), ("imu", "sfm"), ("vio", "sfm"), ("vio_realtime", "vio")])
+def test_the_points_follow_the_pose_source_when_nothing_names_them(poses, expected):
+    """``vio_realtime`` (the camera-rate configuration) reads the odometry's own landmarks instead
+    of matching and triangulating every frame a second time; the other pose sources pair two-view."""
+    assert default_points_spec(POSE_PRESETS[poses]) == expected
+    by_flag, _ = resolve_config({"poses": poses})
+    by_file, _ = resolve_config({}, {"poses": {"preset": poses}})
+    assert by_flag.points.kind.value == expected and by_file == by_flag
+    seeded, _ = resolve_config({"poses": poses}, {"points": {"seed": 7}})  # a table without a source refines it
+    assert seeded.points.kind.value == expected and seeded.points.seed == 7
+    named, _ = resolve_config({"poses": poses}, {"points": {"source": "landmarks"}})
+    assert named.points.kind.value == "landmarks"
