@@ -47,7 +47,8 @@ PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 #: not after every update, and the lag is 4 frames: docs/benchmarks.md "vio_realtime's worker:
 #: iSAM2, and bridges only when learnt better"; and the tracks a keyframe only extends are gated
 #: against their points before the refinement instead of triangulated twice, and at most 600
-#: landmarks (not 800) enter its refinement: "The worker's keyframe update, 2026-12-07 (late)").
+#: landmarks (not 800) enter its refinement: "The worker's keyframe update, 2026-12-07 (late)"; the
+#: bridged frames are re-posed at the frame after a take-over, not in it: "Bridges after the take-over").
 #: They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
@@ -58,7 +59,7 @@ POSE_PRESETS: Presets = Presets("pose source", {
     "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
                                 window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True,
                                                ba_max_landmarks=600),
-                                bridge_every_update=False),
+                                bridge_every_update=False, defer_bridge_refresh=True),
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",

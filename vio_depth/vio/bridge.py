@@ -69,6 +69,8 @@ class FrameBridges:
         self._motion_cov: dict = {}
         # (every_update False) the keyframe pairs whose frames were posed: their sigmas then
         self._done: dict[tuple[int, int], np.ndarray] = {}
+        # a deferred refresh's arguments (:meth:`settle`), or None
+        self._due: tuple | None = None
 
     def start(self, keyframes: list[tuple[int, float]], frames: list[tuple[int, float]]) -> None:
         """A new session from an initialisation: its ``keyframes`` and other ``frames``
@@ -76,7 +78,7 @@ class FrameBridges:
         after the newest keyframe (offered while the initialisation ran in a worker process)
         follows that keyframe (:meth:`add`)."""
         self._bridged, self._unbridged = [], []
-        self._pims, self._motion_cov, self._done = {}, {}, {}
+        self._pims, self._motion_cov, self._done, self._due = {}, {}, {}, None
         for f, t in frames:
             before = [k for k, kt in keyframes if kt <= t]
             after = [k for k, kt in keyframes if kt > t]
@@ -98,15 +100,25 @@ class FrameBridges:
         self._bridged += [(f, ft, a, k) for f, ft, a in self._unbridged if ft < t and f != k]
         self._unbridged = [(f, ft, k) for f, ft, a in self._unbridged if ft > t and f != k]
 
+    def settle(self) -> None:
+        """Run the refresh a :meth:`refresh` with ``defer`` left (nothing when none is due)."""
+        if self._due is not None:
+            due, self._due = self._due, None
+            self.refresh(*due)
+
     def refresh(self, window: LandmarkWindow, times: Mapping[int, float], history: PoseHistory,
-                session: int) -> None:
+                session: int, defer: bool = False) -> None:
         """Pose the bridged frames again from the window's latest estimate (``times``: seconds of
-        the keyframes); frames whose keyframes left the window are kept as they are.
+        the keyframes); frames whose keyframes left the window are kept as they are. ``defer``:
+        only remember to, at :meth:`settle` (a later refresh replaces a deferred one).
 
         The frames of one keyframe pair are posed together (:meth:`_poses`): after every window
         update all of them are, some 60 frames for a 10-keyframe window, and one frame at a time
         this took 90 ms per update on the 752x564 ASL loop (2-core machine). Without
         ``every_update`` only the pairs not posed before or learnt better since are."""
+        self._due = (window, times, history, session) if defer else None
+        if defer:
+            return
         ids = set(window.keyframe_ids)
         est = window.estimate
         keep = [(f, t, a, b) for f, t, a, b in self._bridged if a in ids and b in ids]

@@ -179,11 +179,11 @@ class VioEstimator:
         f = w.keyframe_ids[-1]
         return self.factors.state_of(w.estimate, f, self._times[f])
 
-    def _sync_history(self) -> None:
+    def _sync_history(self, defer: bool = False) -> None:
         w = self.landmarks.window
         ids = w.keyframe_ids
         self.history.update_keyframes(self.session, ids, np.stack([w.pose(f) for f in ids]), w.joint_covariance(ids))
-        self.bridges.refresh(w, self._times, self.history, self.session)
+        self.bridges.refresh(w, self._times, self.history, self.session, defer)
 
     def _health(self) -> str:
         """Why the newest keyframe's state is implausible ("" when it is fine)."""
@@ -413,7 +413,7 @@ class VioEstimator:
             return why
         kf = update.frame_id
         self.bridges.close(kf, self._times[kf])  # frames before it bridged; those after it now follow it
-        self._sync_history()
+        self._sync_history(defer=self.settings.defer_bridge_refresh)  # (re-posed at the next frame then)
         return ""
 
     def _track(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
@@ -426,6 +426,8 @@ class VioEstimator:
             why = self._landed(landed)
             if why:
                 return self._lose(frame_id, why)
+        else:
+            self.bridges.settle()  # a refresh deferred from the previous take-over
         w = self.landmarks.window
         newest = w.keyframe_ids[-1]
         state = self._newest_state()

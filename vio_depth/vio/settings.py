@@ -237,6 +237,11 @@ class VioSettings:
             it moves). The eager refresh re-poses some 60 frames of a 16-keyframe window at
             every update: 33 ms a keyframe on the 752x564 ASL loop, 14 ms without it
             (docs/benchmarks.md "vio_realtime's worker").
+        defer_bridge_refresh: a keyframe update taken over from the worker process re-poses the
+            bridged frames (``bridge_every_update``) at the next frame that takes none over, or
+            when the odometry's poses of other frames are read, not in the take-over frame (True:
+            ``vio_realtime``; the take-over frame is the slowest of a camera-rate stream, and the
+            bridged frames are past ones: docs/benchmarks.md "Bridges after the take-over").
     """
 
     window: LandmarkSettings = field(default_factory=_vio_window)
@@ -260,6 +265,7 @@ class VioSettings:
     rest: RestSettings = field(default_factory=RestSettings)
     backend: WindowBackendSettings = field(default_factory=WindowBackendSettings)
     bridge_every_update: bool = True
+    defer_bridge_refresh: bool = False
 
     def __post_init__(self):
         require_positive(self, "velocity_sigma", "max_scale_sigma", "min_span_sigma_m", "gauge_sigma_m",

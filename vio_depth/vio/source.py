@@ -79,6 +79,7 @@ class VioPoseSource:
     def track(self, frame: Frame, features: Features) -> FramePose:
         """Estimate the pose of the next frame; a frame seen before gets its current pose."""
         if self._last is not None and frame.index <= self._last:
+            self.estimator.bridges.settle()  # the in-between frames' poses are read: re-posed if due
             T = self.estimator.history.pose(frame.index)
             if T is not None:
                 old = self._results.get(frame.index)
@@ -102,6 +103,7 @@ class VioPoseSource:
         Only frames of the odometry's main session (the one with the most posed frames)
         have one: after a re-initialisation the world frame is a new one.
         """
+        self.estimator.bridges.settle()
         history = self.estimator.history
         if self._main_session is None or self._main_session[0] != len(history):
             sessions = history.sessions()
@@ -117,6 +119,7 @@ class VioPoseSource:
 
     def relative(self, keyframe: Frame, current: Frame) -> RelativePose:
         """``T_kf_cur`` and its (6, 6) covariance (right perturbation in the current camera)."""
+        self.estimator.bridges.settle()
         T, C, reason = self.estimator.history.relative(keyframe.index, current.index)
         if T is None:
             return RelativePose(None, ok=False, reason=reason)

@@ -62,8 +62,9 @@ def test_each_pose_preset_builds_its_source_from_its_settings_type():
     assert realtime.window.gate_extended_tracks and not VioSettings().window.gate_extended_tracks
     assert realtime.window.ba_max_landmarks == 600 and VioSettings().window.ba_max_landmarks == 800
     assert realtime.bridge_every_update is False and VioSettings().bridge_every_update is True
+    assert realtime.defer_bridge_refresh and not VioSettings().defer_bridge_refresh
     assert replace(realtime, backend=VioSettings().backend, window=VioSettings().window,
-                   bridge_every_update=True) == VioSettings()
+                   bridge_every_update=True, defer_bridge_refresh=False) == VioSettings()
     seq = _Sequence(_imu())
     gt = build_pose_stage("gt", seq)
     assert isinstance(gt.source, GroundTruthPoses) and gt.tracker is None

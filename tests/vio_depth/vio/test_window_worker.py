@@ -116,3 +116,44 @@ def test_a_static_start_built_in_the_worker_rests_from_the_take_over_on():
     assert all(out[i].status.value == "still" and out[i].ok for i in resting), {out[i].status.value for i in resting}
     p0 = poses[start][:3, 3]  # the static start's keyframe
     assert max(np.linalg.norm(poses[i][:3, 3] - p0) for i in resting) < 1e-3
+
+
+def test_a_deferred_bridge_refresh_leaves_the_take_over_frame_and_changes_no_pose(scene, monkeypatch):
+    """``defer_bridge_refresh`` (``vio_realtime``): the frame that takes a keyframe update over
+    from the worker does not re-pose the bridged frames (9-28 ms of the slowest frames of a
+    20 Hz stream); the next frame does, and the live poses and the final history (settled) are
+    those of the eager refresh, bit for bit."""
+    from vio_depth.vio.bridge import FrameBridges
+
+    calls: list[tuple[int, bool]] = []  # (frame being processed, deferred)
+    refresh = FrameBridges.refresh
+
+    def logged(self, *args, **kwargs):
+        calls.append((current[0], bool(args[4] if len(args) > 4 else kwargs.get("defer", False))))
+        return refresh(self, *args, **kwargs)
+
+    monkeypatch.setattr(FrameBridges, "refresh", logged)
+    backend = WindowBackendSettings("process", lag_frames=3, start_lag_frames=0, init_lag_frames=0)
+    runs = []
+    for defer in (False, True):
+        est = VioEstimator(scene.imu, IdMatcher(), replace(SETTINGS, backend=backend, defer_bridge_refresh=defer))
+        calls.clear()
+        out = []
+        for k, f in enumerate(scene.frames):
+            current = [f.index]
+            out.append(est.process(f.index, f.timestamp, f.camera, scene.features[k]))
+        est.bridges.settle()
+        poses = np.stack([np.full((4, 4), np.nan) if est.history.pose(i) is None else est.history.pose(i)
+                          for i in range(len(scene.frames))])
+        est.backend.close()
+        runs.append((out, poses, list(calls)))
+    (eager_out, eager_poses, eager_calls), (out, poses, deferred_calls) = runs
+    taken_over = {frame for frame, deferred in deferred_calls if deferred}
+    assert len(taken_over) >= 3 and not any(d for _, d in eager_calls)
+    # in a take-over frame the only refresh is the deferred one; a later frame runs it
+    assert not [frame for frame, deferred in deferred_calls if frame in taken_over and not deferred]
+    assert [o.status for o in out] == [o.status for o in eager_out]
+    for a, b in zip(eager_out, out):
+        if a.T_w_c is not None:
+            np.testing.assert_array_equal(a.T_w_c, b.T_w_c)
+    np.testing.assert_array_equal(poses, eager_poses)
