@@ -136,7 +136,7 @@ from vio_depth import FrameStream, PipelineSettings  # noqa: E402
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error  # noqa: E402
 from vio_depth.evaluation.metrics import compute_metrics  # noqa: E402
 from vio_depth.landmarks import WindowBackendSettings  # noqa: E402
-from vio_depth.pipeline import POSE_PRESETS, default_matcher_preset  # noqa: E402
+from vio_depth.pipeline import POSE_PRESETS, default_matcher_preset, default_points_spec  # noqa: E402
 from vio_depth.pipeline.result import PIPELINE_STAGES  # noqa: E402
 from vio_depth.run.overlap import TorchThreads, blas_threads, opencv_threads  # noqa: E402
 from vio_depth.vio import VioSettings  # noqa: E402
@@ -576,6 +576,13 @@ def baseline_row(ds: data.StreamData, baseline) -> Row:
     return Row(ds.name, ds.size, baseline.name, "afap", len(ds), result, rss_mib=peak_rss_mib())
 
 
+def preset_specs(presets: list[str], points: list[str], modes: list[str]) -> list[tuple[str, str, str, str]]:
+    """``(matcher, points, mode, preset)`` of each ``--pose-presets`` row: the matcher and, unless
+    ``points`` names some (``--vio-points``), the points the CLI takes with that preset."""
+    return [(default_matcher_preset(POSE_PRESETS[p]), source, mode, p)
+            for p in presets for source in (points or [default_points_spec(POSE_PRESETS[p])]) for mode in modes]
+
+
 def with_changes(settings: PipelineSettings, changes: dict) -> PipelineSettings:
     """``settings`` with each ``FIELD: value`` set on the odometry's window (``LandmarkSettings``), or
     else on the odometry (``VioSettings``; ``backend`` as a tuple of ``WindowBackendSettings``' fields);
@@ -719,10 +726,11 @@ def main(argv=None) -> int:
                              "the KLT tracking front end)")
     parser.add_argument("--klt-edge-guard", type=float, default=0.1,
                         help="the klt rows' --edge-guard (points on depth edges not fitted; the corners sit on them)")
-    parser.add_argument("--vio-points", default="sfm",
+    parser.add_argument("--vio-points", default=None,
                         help="comma-separated --points sources of the vio datasets' rows, one row set each (sfm: "
-                             "two-view pairs matched and triangulated again, today's default; vio: the odometry's "
-                             "own landmarks, no second matching)")
+                             "two-view pairs matched and triangulated again; vio: the odometry's own landmarks, no "
+                             "second matching); default: sfm, and with --pose-presets each preset's own default "
+                             "(vio with vio_realtime), as the CLI")
     parser.add_argument("--vio-backends", default="inline",
                         help="comma-separated, where the vio rows' window updates run, one row set each: inline "
                              "(today's default: a keyframe's frame waits for its update) and/or process (a worker "
@@ -767,8 +775,8 @@ def main(argv=None) -> int:
     bad_presets = [p for p in presets if p not in vio_names]
     if bad_presets:
         parser.error(f"unknown --pose-presets {', '.join(bad_presets)} (valid: {', '.join(vio_names)})")
-    vio_points = [p for p in args.vio_points.split(",") if p]
-    if not vio_points or not set(vio_points) <= {"sfm", "vio"}:
+    vio_points = [p for p in (args.vio_points or ("" if presets else "sfm")).split(",") if p]
+    if (args.vio_points is not None or not presets) and (not vio_points or not set(vio_points) <= {"sfm", "vio"}):
         parser.error(f"unknown --vio-points {args.vio_points!r} (valid: sfm, vio)")
     try:
         backends = [WindowBackendSettings(b, args.vio_lag, args.vio_when_ready,
@@ -803,9 +811,9 @@ def main(argv=None) -> int:
               f"{ds.pairing}): {ds.description}", flush=True)
         sources = vio_points if ds.poses == "vio" else [None]
         where = backends if ds.poses == "vio" else [None]
-        if ds.poses == "vio" and presets:  # the CLI's named configurations, each with its own matcher
-            specs = [(default_matcher_preset(POSE_PRESETS[p]), points, None, {}, mode, p)
-                     for p, points, mode in itertools.product(presets, sources, modes)]
+        if ds.poses == "vio" and presets:  # the CLI's named configurations, each with its own matcher and points
+            specs = [(matcher, points, None, {}, mode, p)
+                     for matcher, points, mode, p in preset_specs(presets, vio_points, modes)]
         else:
             specs = [(*spec, None) for spec in itertools.product(matchers, sources, where, windows, modes)]
         for matcher, points, backend, window, mode, preset in specs:

@@ -334,7 +334,8 @@ def _cmd_presets() -> int:
     for name in POSE_UNCERTAINTY_PRESETS:
         print(f"  {name:20s} {POSE_UNCERTAINTY_PRESETS.describe(name)}")
     with_poses = [p for p in POSE_PRESETS if default_points_spec(POSE_PRESETS[p]) != "sfm"]
-    print("points:\n  " + ", ".join(POINT_SPEC_FORMS) + "   (default: sfm; vio with --poses " + ", ".join(with_poses) + ")")
+    print("points:\n  " + ", ".join(POINT_SPEC_FORMS) + "   (default: sfm; vio with --poses "
+          + ", ".join(with_poses) + ")")
     print("disparity:\n  " + ", ".join(DISPARITY_CHOICES) + "   (simulation presets: " + ", ".join(disparity_presets()) + ")")
     print("formats:\n  " + ", ".join(available_formats()))
     return 0

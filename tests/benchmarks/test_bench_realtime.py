@@ -152,3 +152,13 @@ def test_pose_presets_must_be_the_odometry_presets():
     for bad in ("gt", "vio_fast"):
         with pytest.raises(SystemExit):
             br.main(["--datasets", "asl_room", "--pose-presets", bad])
+
+
+def test_preset_rows_take_the_presets_matcher_and_points_unless_named():
+    """A ``--pose-presets`` row is built as ``vio-depth run --poses NAME`` builds it: vio with sift
+    and two-view points, vio_realtime with klt and the odometry's own landmarks; ``--vio-points``
+    names the points for every preset instead."""
+    rows = br.preset_specs(["vio", "vio_realtime"], [], ["afap"])
+    assert rows == [("sift", "sfm", "afap", "vio"), ("klt", "vio", "afap", "vio_realtime")]
+    named = br.preset_specs(["vio_realtime"], ["sfm", "vio"], ["afap"])
+    assert [r[1] for r in named] == ["sfm", "vio"]
