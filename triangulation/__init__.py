@@ -2,7 +2,7 @@
 geometry (``epipolar``), N-view tracks with pose uncertainty (``multiview``, its projection
 Jacobians in ``jacobians``, its batched small algebra in ``batched``), whether the
 images agree with a stated pose (``consistency``) and how precise a pair's points would be
-(``precision``).
+(``precision``; two views' matches in closed form: ``pair_sigma``).
 
 A leaf layer: it imports only :mod:`vio_core` (and numpy, scipy).
 """
@@ -16,6 +16,7 @@ from .multiview import (
     depth_in_view,
     triangulate_tracks,
 )
+from .pair_sigma import two_view_relative_sigma
 from .precision import depth_pose_jacobian, predicted_depth_error
 from .triangulate import (
     TRIANGULATION_PRESETS,
@@ -38,6 +39,7 @@ __all__ = [
     "pose_consistency",
     "predicted_depth_error",
     "triangulate_tracks",
+    "two_view_relative_sigma",
     "PointStatus",
     "TriangulatedPoints",
     "TriangulationSettings",

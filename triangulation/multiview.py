@@ -64,7 +64,7 @@ from vio_core.checks import check_array
 from vio_core.errors import InputError, SettingsError
 
 from .batched import finite, inv2, inv3, quad2, solve3, sum_by
-from .jacobians import image_pose_jacobian, normal_terms, point_jacobian, pose_jacobian, sandwich2
+from .jacobians import depth_variance, image_pose_jacobian, normal_terms, point_jacobian, pose_jacobian, sandwich2
 
 # numerical floor on the largest angle between a track's rays (degrees): below it the
 # geometry is treated as degenerate whatever the stated uncertainties say
@@ -385,17 +385,8 @@ def triangulate_tracks(track, view, uv, cameras, T_w_c, settings: MultiviewSetti
     depth = p_c[:, 2]
     a = R_cw[:, 2, :]  # dz/dX
     Ca = np.einsum("nij,nj->ni", np.nan_to_num(cov_w)[t], a)  # H^-1 a (H^-1 symmetric)
-    var = np.einsum("ni,ni->n", a, Ca)
-    if cov is not None:
-        b = np.zeros((m, 6))  # dz/dxi: row z of pose_jacobian, [-y, x, 0, 0, 0, -1]
-        b[:, 0], b[:, 1], b[:, 5] = -p_c[:, 1], p_c[:, 0], -1.0
-        Sb = np.einsum("nkl,nl->nk", cov_v, b)  # pairwise contractions: one 5-operand einsum is 10x slower
-        var = var + np.einsum("ni,ni->n", b, Sb)
-        # cross term: the point was estimated from this view's (uncertain) pose,
-        # a^T H^-1 J_X^T S^-1 J_pose Sigma b
-        q = np.einsum("nj,njk->nk", Ca, JtS)  # (M, 2)
-        cross = np.einsum("nk,nk->n", q[:, 0, None] * J_pose[:, 0] + q[:, 1, None] * J_pose[:, 1], Sb)
-        var = var + 2.0 * np.where(inlier, cross, 0.0)
+    # with pose uncertainty, the cross term: the point was estimated from this view's pose
+    var = depth_variance(a, Ca, p_c, cov_v, JtS, J_pose, inlier)
     sigma = np.sqrt(np.maximum(var, 0.0))
 
     front = sum_by(t, (inlier & ~(depth > 0)).astype(float), n_tracks) == 0

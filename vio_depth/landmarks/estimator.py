@@ -43,7 +43,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from matchers import EpipolarPrior, PoseGuidedMatcher
-from triangulation.multiview import TrackStatus, triangulate_tracks
+from triangulation import two_view_relative_sigma
 from vio_core.camera import Camera
 from vio_core.checks import check_transform
 from vio_core.errors import InputError
@@ -282,19 +282,15 @@ class LandmarkEstimator:
         rot_var = (self.settings.multiview.pixel_sigma_px / camera.fx) ** 2 / max(len(m), 1)
         C_cur[:3, :] = C_cur[:, :3] = 0.0  # drop rotation and its cross terms
         C_cur[:3, :3] = np.minimum(np.diag(np.diag(points.covariance[:3, :3])), rot_var * np.eye(3))
-        C = np.stack([1e-12 * np.eye(6), C_cur])
-        # a median over an evenly spaced subset of the matches (PARALLAX_MAX_MATCHES)
+        # a median over an evenly spaced subset of the matches (PARALLAX_MAX_MATCHES), in closed form:
+        # the N-view triangulation (Gauss-Newton, outlier rounds) took 6-9 ms a call, this 1 ms
+        # (docs/benchmarks.md "The keyframe decision's two-view sigma in closed form")
         pick = np.unique(np.linspace(0, len(m) - 1, min(len(m), PARALLAX_MAX_MATCHES)).astype(np.int64))
-        n = len(pick)
-        uv = np.concatenate([kf_uv[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]]])
-        res = triangulate_tracks(np.tile(np.arange(n), 2), np.repeat([0, 1], n), uv, [kf_camera, camera],
-                                 np.stack([T_kf, T_cur]), self.settings.multiview, C)
-        ok = np.isin(res.status, (TrackStatus.VALID, TrackStatus.UNCERTAIN, TrackStatus.DEPTH_RANGE))
-        if ok.sum() < 5:
-            return float("inf")
-        d = res.depth[n:][ok[res.obs_track[n:]]]
-        s = res.sigma_depth[n:][ok[res.obs_track[n:]]]
-        return float(np.median(s / np.maximum(d, 1e-12)))
+        mv = self.settings.multiview
+        rel = two_view_relative_sigma(kf_uv[m.idx_keyframe[pick]], keypoints[m.idx_frame[pick]], kf_camera, camera,
+                                      T_kf, T_cur, C_cur, mv.pixel_sigma_px, mv.max_residual_sigmas)
+        rel = rel[np.isfinite(rel)]
+        return float(np.median(rel)) if len(rel) >= 5 else float("inf")
 
     @staticmethod
     def epipolar_priors(window, keyframes: Sequence[int], camera: Camera, T_w_c,
