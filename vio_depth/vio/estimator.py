@@ -315,11 +315,13 @@ class VioEstimator:
         if why:
             self.landmarks = None
             return why
-        # the other frames of the initialisation: posed between the keyframes around them,
-        # again after every window update while those keyframes are in the window
+        # the other frames of the initialisation, and those that waited for its window built in the
+        # worker: posed between the keyframes around them, again after window updates
         keyframes = list(res.keyframes) + self._catch_up
         ids = {k.frame_id for k in keyframes}
-        self.bridges.start([(k.frame_id, k.t) for k in keyframes], [(f, t) for f, t in res.frames if f not in ids])
+        waited = {f: ft for f, ft in self._times.items() if ft > keyframes[-1].t and f < self._last_id}
+        frames = sorted((dict(res.frames) | waited).items(), key=lambda ft: ft[1])
+        self.bridges.start([(k.frame_id, k.t) for k in keyframes], [(f, t) for f, t in frames if f not in ids])
         self._sync_history()
         self._last_visual_t = keyframes[-1].t
         self.landmark_log.record_window_keyframes(
