@@ -214,6 +214,22 @@ class PipelineSettings:
             s = dataclasses.replace(s, points=parse_points_spec(points, seed=s.points.seed))
         return with_tracker_defaults(s) if matcher is not None else s
 
+    @classmethod
+    def for_pose_source(cls, poses: str | None = None, *, matcher: str | None = None, points: str | None = None,
+                        **presets) -> "PipelineSettings":
+        """Settings from preset names as ``vio-depth run`` builds them (without a config file): a
+        matcher and points not named follow the pose source (:func:`default_matcher_preset`,
+        :func:`default_points_spec`: klt with ``gt``; klt and the odometry's own landmarks with
+        ``vio_realtime``; sift and two-view pairs otherwise), where :meth:`from_presets` keeps the
+        library's field defaults (sift, two-view) whatever the poses. ``presets``: the other
+        arguments of :meth:`from_presets`. A robot's :class:`~vio_depth.pipeline.FrameStream` at
+        camera rate: ``PipelineSettings.for_pose_source("vio_realtime")`` (``from_presets`` would
+        give it sift's matching against keyframes a few frames old and two-view points, the
+        combination that lost accuracy and did not keep 20 Hz: docs/benchmarks.md)."""
+        pose_settings = POSE_PRESETS[poses if poses is not None else POSE_PRESETS.default]
+        return cls.from_presets(poses=poses, matcher=matcher or default_matcher_preset(pose_settings),
+                                points=points or default_points_spec(pose_settings), **presets)
+
     def preset_names(self) -> dict[str, str | None]:
         """For each stage family, the preset these settings derive from (by type and extractor)."""
         return {name: family.name_of(getattr(self, name), key=_preset_key) for name, family in PRESET_FAMILIES.items()}

@@ -4,7 +4,7 @@ import pytest
 
 from matchers import KltSettings, SiftSettings
 from vio_core.errors import InputError, SettingsError
-from vio_depth.pipeline import TRACKER_DEFAULTS, default_matcher_preset, default_points_spec
+from vio_depth.pipeline import TRACKER_DEFAULTS, PipelineSettings, default_matcher_preset, default_points_spec
 from vio_depth.pipeline.settings import POSE_PRESETS
 from vio_depth.run import load_config, read_config, resolve_config
 
@@ -88,3 +88,20 @@ def test_the_points_follow_the_pose_source_when_nothing_names_them(poses, expect
     assert seeded.points.kind.value == expected and seeded.points.seed == 7
     named, _ = resolve_config({"poses": poses}, {"points": {"source": "landmarks"}})
     assert named.points.kind.value == "landmarks"
+
+
+@pytest.mark.parametrize("poses", [None, *POSE_PRESETS])
+def test_for_pose_source_builds_what_the_command_line_builds(poses):
+    """The library's ``PipelineSettings.for_pose_source`` gives the command line's settings for the
+    same preset names (the matcher and points following the pose source); ``from_presets`` keeps
+    sift and two-view points whatever the poses."""
+    flags = {} if poses is None else {"poses": poses}
+    for extra in ({}, {"pairing": "indoor"}, {"matcher": "sift"}):
+        expected, _ = resolve_config({**flags, **extra})
+        assert PipelineSettings.for_pose_source(poses, **extra) == expected, (poses, extra)
+    named, _ = resolve_config(flags, {"points": "landmarks"})  # (on the command line: --points)
+    assert PipelineSettings.for_pose_source(poses, points="landmarks") == named
+    plain = PipelineSettings.from_presets(**flags)
+    assert isinstance(plain.matcher, SiftSettings) and plain.points.kind.value == "sfm"
+    with pytest.raises(ValueError, match="vio_realtime"):
+        PipelineSettings.for_pose_source("vio_fast")
