@@ -3,8 +3,8 @@
 one frame later it reproduces the inline run exactly; taken over later it stays as accurate,
 every frame keeps a pose, and runs are reproducible; an initialisation's window built in the
 worker is taken over start_lag_frames later, the frames between wait (and are bridged
-afterwards). The dynamic attempt's
-outcome is taken over in its own frame here (``init_lag_frames`` 0; test_init_worker.py: later)."""
+afterwards). The dynamic attempt's outcome is taken over in its own frame here
+(``init_lag_frames`` 0; test_init_worker.py: later)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from vio_core.geometry import rotation_angle_deg
 from vio_depth.evaluation import CameraTrajectory, absolute_trajectory_error
 from vio_depth.landmarks import WindowBackendSettings
 from vio_depth.pipeline import POSE_PRESETS
@@ -97,7 +98,7 @@ def test_the_start_built_in_the_worker_is_taken_over_later_and_the_frames_betwee
     assert np.all(np.isfinite(poses[waited])), "a frame that waited for the start was never posed"
     for k in waited:  # relative to the start's keyframe (the gauge differs): within 2 mm and 0.05 deg
         err = np.linalg.inv(np.linalg.inv(scene.T_w_c[start]) @ scene.T_w_c[k]) @ np.linalg.inv(poses[start]) @ poses[k]
-        angle = np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1)))
+        angle = rotation_angle_deg(err[:3, :3])
         assert np.linalg.norm(err[:3, 3]) < 0.002 and angle < 0.05, (k, np.linalg.norm(err[:3, 3]), angle)
     posed = np.flatnonzero(np.isfinite(poses[:, 0, 0]))
     assert len(posed) >= len(scene.frames) - start
