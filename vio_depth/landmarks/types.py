@@ -158,6 +158,12 @@ class WindowUpdate:
         """The keyframe was inserted."""
         return self.status == UpdateStatus.INSERTED
 
+    def summary(self) -> str:
+        """One line for a log: the keyframe, its landmarks, observations, residual and graph error."""
+        return (f"keyframe {self.frame_id}: {self.landmarks} landmarks, {self.observations} observations, median "
+                f"residual {self.median_residual_px:.2f} px, graph error {self.lm_error_before:.1f} -> "
+                f"{self.lm_error_after:.1f}")
+
     @classmethod
     def refused(cls, frame_id: int, keyframes: int, reason: str) -> "WindowUpdate":
         """The keyframe ``frame_id`` was refused (``reason``); the window (``keyframes``) is unchanged."""

@@ -170,6 +170,10 @@ class LazyImuPoses:
         source = self._current()
         return None if source is None else source.world_pose(frame)
 
+    def finish(self) -> None:
+        if isinstance(self.source, VioPoseSource):
+            self.source.finish()
+
     def frame_landmarks(self, frame: Frame):
         """The landmarks the odometry saw in ``frame``
         (:meth:`~vio_depth.vio.VioPoseSource.frame_landmarks`; ``vio`` only), or None before

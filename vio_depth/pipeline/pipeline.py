@@ -107,6 +107,15 @@ class Pipeline:
         and :meth:`close` stops (a pose stage handed in keeps its own)."""
         return self._workers
 
+    def finish_sequence(self) -> None:
+        """The sequence ended (an offline run, before its backward pass): the pose source settles
+        what it still has pending (:meth:`~vio_depth.poses.TrackingPoseSource.finish`: the
+        odometry's worker may hold an initialisation, its start or a keyframe update not due
+        yet); the frames it poses then can get depth from the backward pass. A live stream has
+        no end to settle."""
+        if self.tracker is not None:
+            self.tracker.finish()
+
     def close(self) -> None:
         """Stop the worker processes this pipeline started (a ``process`` backend of the
         odometry's or the points window): it processes no frame after this. Without it they stop

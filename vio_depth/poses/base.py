@@ -114,3 +114,7 @@ class TrackingPoseSource(Protocol):
 
     def world_pose(self, frame: Frame) -> np.ndarray | None:
         """(4, 4) the source's latest camera-to-world pose of a tracked frame, or None."""
+
+    def finish(self) -> None:
+        """The sequence ended (an offline run, before its backward pass): settle what is still
+        pending, so that :meth:`relative` and :meth:`world_pose` give the final poses."""

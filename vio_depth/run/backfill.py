@@ -30,7 +30,9 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     """Results with depth for the leading frames that had none, from a backward pass.
 
     The leading frames are those before the first frame with depth whose failure is about
-    pairing or points (not a missing disparity). A fresh pipeline with the same settings
+    pairing, points or poses (not a missing disparity); when none has depth, every frame if the
+    pose source tracks (the odometry's worker may have posed them at the end of the sequence:
+    :meth:`Pipeline.finish_sequence`) and some frame had no pose, else none. A fresh pipeline with the same settings
     (its points window inline) processes frames ``last .. 0`` in reverse order, where
     ``last`` lies ``2 * buffer_size`` frames beyond the last leading frame, so each leading
     frame meets keyframes from its future. ``results`` maps each index to anything with ``has_depth`` and ``status`` (a
@@ -39,7 +41,10 @@ def backfill_leading_frames(sequence: Sequence, pipeline: Pipeline, results: dic
     ``{index: (frame, FrameResult)}`` for the frames that now have depth.
     """
     first_ok = next((i for i in range(n) if results[i].has_depth), None)
-    if first_ok is None or first_ok == 0:
+    if first_ok is None:  # none had depth: the frames a tracking pose source could pose only at the end
+        first_ok = n if pipeline.tracker is not None and any(results[i].status == FrameStatus.NO_POSE
+                                                             for i in range(n)) else 0
+    if first_ok == 0:
         return {}
     lead = [i for i in range(first_ok)
             if results[i].status not in (FrameStatus.NO_DISPARITY, FrameStatus.INVALID_DISPARITY,

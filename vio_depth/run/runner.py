@@ -182,6 +182,7 @@ def _run(sequence: Sequence, pipeline: Pipeline, folder: OutputFolder, settings:
             features = forward_pass(sequence, pipeline, n, frames_out, writer, progress=progress, overlap=overlap,
                                     workers=workers, torch_threads=torch_threads,
                                     keep=backfill and pipeline.tracked is None)
+            pipeline.finish_sequence()  # what the odometry's worker still had: poses for the backward pass
             if backfill:
                 backfill_s = backfill_pass(sequence, pipeline, n, frames_out, writer, features, overlap=overlap,
                                            workers=workers)

@@ -92,6 +92,10 @@ class FrameBridges:
         the next keyframe comes (:meth:`close`)."""
         self._unbridged.append((int(frame_id), float(t), int(keyframe)))
 
+    def following(self) -> list[tuple[int, float, int]]:
+        """``(frame, t seconds, keyframe)`` of the frames after the newest keyframe (not bridged yet)."""
+        return list(self._unbridged)
+
     def close(self, keyframe: int, t: float = float("inf")) -> None:
         """``keyframe`` (at ``t`` seconds) is new: the frames since the previous keyframe are
         bridged between the two. Frames after ``t`` (tracked while the window was refined in a

@@ -38,7 +38,8 @@ motion-only refinement against the window as it was; it is taken over ``lag_fram
 later, before that frame's prediction (health check, bridges and history as for an inline
 keyframe). The keyframe's own frame keeps the pose it was given when processed (anchored to
 the previous keyframe) until the window's refined pose replaces it. An initialisation's
-window is built there too, taken over ``start_lag_frames`` later (the frames between wait).
+window is built there too, taken over ``start_lag_frames`` later (the frames between wait);
+after an offline sequence's last frame :meth:`VioEstimator.finish` takes over what is pending.
 """
 
 from __future__ import annotations
@@ -62,18 +63,12 @@ from .imu_factors import ImuFactors, KeyframeState
 from .initializer import Candidate, Initializer, InitKind, InitResult
 from .landmark_feed import KEPT_FRAMES, LandmarkLog, OdometryLandmarks, relative_scale_sigma
 from .matching import EpipolarGatedMatcher
-from .init_remote import RemoteInitializer
+from .init_remote import RemoteInitializer, catch_up_candidates
 from .rest import RestDetector, RestTest
 from .settings import VioSettings
-from .status import VioFrame, VioStatus
+from .status import VioFrame, VioStatus, implausible
 
 log = logging.getLogger(__name__)
-
-
-def _log_start_keyframe(u: WindowUpdate) -> None:
-    log.debug("vio: start keyframe %d: %d landmarks, %d observations, median residual %.2f px, graph error "
-              "%.1f -> %.1f", u.frame_id, u.landmarks, u.observations, u.median_residual_px, u.lm_error_before,
-              u.lm_error_after)
 
 
 class VioEstimator:
@@ -187,21 +182,10 @@ class VioEstimator:
 
     def _health(self) -> str:
         """Why the newest keyframe's state is implausible ("" when it is fine)."""
-        s = self.settings
         try:
-            st = self._newest_state()
+            return implausible(self._newest_state(), self.settings)
         except NumericalError as error:  # an expected outcome here: the odometry is lost, not the run
             return str(error)
-        if not np.all(np.isfinite(st.T_w_i)):
-            return "the estimate is not finite"
-        speed = float(np.linalg.norm(st.velocity_w))
-        if not speed <= s.max_speed_m_s:
-            return f"estimated speed {speed:.1f} m/s (> {s.max_speed_m_s})"
-        if not np.linalg.norm(st.accel_bias) <= s.max_accel_bias:
-            return f"estimated accelerometer bias {np.linalg.norm(st.accel_bias):.2f} m/s^2 (> {s.max_accel_bias})"
-        if not np.linalg.norm(st.gyro_bias) <= s.max_gyro_bias:
-            return f"estimated gyroscope bias {np.linalg.norm(st.gyro_bias):.3f} rad/s (> {s.max_gyro_bias})"
-        return ""
 
     def _lose(self, frame_id: int, reason: str) -> VioFrame:
         log.info("vio: lost at frame %d: %s", frame_id, reason)
@@ -232,29 +216,13 @@ class VioEstimator:
             # the initialisation's state: the first keyframe's prior, the others' initial values
             out.append((k.frame_id, k.t, k.camera, st.T_w_i @ T_i_c, k.features, matches, st))
             before.add(k.frame_id)
-        self._catch_up = self._catch_up_candidates(res)
+        self._catch_up = catch_up_candidates(self.initializer.candidates(), res, s.backend.catch_up_keyframes)
         for c in self._catch_up:  # posed by the IMU from the keyframe before (no initial state)
             self._times[c.frame_id] = c.t
             matches = tuple(FrameMatches.from_matches(a[0], self._gate.match(c.features, a[4]))
                             for a in out[::-1][: s.window.match_keyframes])
             out.append((c.frame_id, c.t, c.camera, None, c.features, matches, None))
         return out
-
-    def _catch_up_candidates(self, res: InitResult) -> list[Candidate]:
-        """Candidates collected after the initialisation's newest keyframe while its attempt ran
-        in the worker process: up to ``catch_up_keyframes`` of them, spread evenly in time up
-        to the newest, join the start's window (without them the first keyframe tracked would
-        be matched across every frame of the attempt's and the window's lags: ~20 frames, and
-        on a street drive ~20 common landmarks decided the scale)."""
-        n = self.settings.backend.catch_up_keyframes
-        last = res.keyframes[-1]
-        later = [c for c in self.initializer.candidates() if c.frame_id > last.frame_id]
-        if n == 0 or not later or res.kind != InitKind.DYNAMIC:
-            return []
-        times = np.array([c.t for c in later])
-        targets = last.t + (times[-1] - last.t) * np.arange(1, n + 1) / n
-        picks = sorted({int(np.argmin(np.abs(times - g))) for g in targets})
-        return [later[i] for i in picks]
 
     def _start(self, res: InitResult) -> str:
         """Build the window from an initialisation here; "" on success, else why it was refused."""
@@ -264,7 +232,7 @@ class VioEstimator:
                 if not upd.ok:
                     self.landmarks = None
                     return f"the window could not start: {upd.reason}"
-                _log_start_keyframe(upd)
+                log.debug("vio: start %s", upd.summary())
         except NumericalError as exc:
             self.landmarks = None
             return f"the window could not start: {exc}"
@@ -279,11 +247,12 @@ class VioEstimator:
         self.landmarks.submit_keyframes(keyframes, max(self.settings.backend.start_lag_frames - since, 1))
         self._starting = res
 
-    def _land_start(self, frame_id: int) -> tuple[bool, str]:
-        """``(landed, why)``: whether the window worker's start is taken over at this frame,
-        and why it was refused ("" when the odometry started)."""
+    def _land_start(self, frame_id: int, final: bool = False) -> tuple[bool, str]:
+        """``(landed, why)``: whether the window worker's start is taken over at this frame
+        (``final``: now, waiting for it, after the sequence's last frame), and why it was
+        refused ("" when the odometry started)."""
         try:
-            update = self.landmarks.land(frame_id)
+            update = self.landmarks.land(frame_id, wait=final)
         except NumericalError as exc:
             update, why = None, f"the window could not start: {exc}"
         else:
@@ -292,14 +261,15 @@ class VioEstimator:
             why = "" if update.ok else f"the window could not start: {update.reason}"
         res, self._starting = self._starting, None
         if not why:
-            why = self._started(res)
+            why = self._started(res, final)
         if why:
             self.landmarks = None
         return True, why
 
-    def _started(self, res: InitResult) -> str:
+    def _started(self, res: InitResult, final: bool = False) -> str:
         """Check the window built from an initialisation and start tracking from it; "" on
-        success, else why it was refused (the caller drops the window)."""
+        success, else why it was refused (the caller drops the window). ``final``: taken over
+        after the sequence's last frame (which waited too)."""
         s = self.settings
         why = self._health()
         if not why and res.kind == InitKind.DYNAMIC and len(res.keyframes) > 1:
@@ -319,7 +289,7 @@ class VioEstimator:
         # worker: posed between the keyframes around them, again after window updates
         keyframes = list(res.keyframes) + self._catch_up
         ids = {k.frame_id for k in keyframes}
-        waited = {f: ft for f, ft in self._times.items() if ft > keyframes[-1].t and f < self._last_id}
+        waited = {f: ft for f, ft in self._times.items() if ft > keyframes[-1].t and (f < self._last_id or final)}
         frames = sorted((dict(res.frames) | waited).items(), key=lambda ft: ft[1])
         self.bridges.start([(k.frame_id, k.t) for k in keyframes], [(f, t) for f, t in frames if f not in ids])
         self._sync_history()
@@ -328,6 +298,42 @@ class VioEstimator:
             self.landmarks, [(k.frame_id, k.camera, np.asarray(k.features.keypoints, np.float64)) for k in keyframes],
             self._scale_sigma(), f"{res.kind} initialisation keyframe")
         return ""
+
+    def finish(self) -> None:
+        """The sequence ended (an offline run, before its backward pass): take over, waiting for
+        it, what the window's worker still has (an initialisation attempt in flight and its start's
+        window, a keyframe update not due yet) as a later frame would have, so that the frames
+        that waited get poses; those after the newest keyframe without one are posed by IMU
+        prediction from it (within ``max_imu_only_s``). Inline, nothing is pending."""
+        if self.backend is None or self._last_id is None:
+            return
+        last, why = self._last_id, ""
+        if self.landmarks is None:  # initialising: an attempt in flight?
+            res = self._remote_init.finish()
+            if res is None or not res.ok:
+                return
+            self._submit_start(res)
+        if self._starting is not None:
+            res = self._starting
+            why = self._land_start(last, final=True)[1]
+            if not why:
+                self._log_start(res, last)
+        else:
+            try:
+                update = self.landmarks.land(last, wait=True)
+                why = "" if update is None else self._landed(update)
+            except NumericalError as exc:
+                why = str(exc)
+        if why:  # the poses so far stay as they are
+            log.info("vio: what the worker had at the end was refused: %s", why)
+            return
+        self.bridges.settle()
+        state = self._newest_state()
+        for f, t, kf in self.bridges.following():
+            if f not in self.history and t - state.t <= self.settings.max_imu_only_s:
+                T, C, _ = self.factors.predict_camera(state, t)
+                if T is not None:
+                    self.history.add_frame(f, self.session, kf, T, C)
 
     # ------------------------------------------------------------------ per frame
     def process(self, frame_id: int, t: float, camera: Camera, features: Features) -> VioFrame:
@@ -394,7 +400,7 @@ class VioEstimator:
                  "" if al is None else f"; scale {al.scale:.4g} +- {al.scale_sigma:.1%}, gravity error "
                                        f"{al.gravity_error:+.2f} m/s^2, excitation {al.excitation:.2f} m/s^2")
         for upd in self.landmarks.landed_updates:  # a start built in the worker (inline: logged by _start)
-            _log_start_keyframe(upd)
+            log.debug("vio: start %s", upd.summary())
         self.last_init = res
 
     def _still_frame(self, frame_id: int, t: float, rest: RestTest) -> VioFrame:
@@ -436,16 +442,9 @@ class VioEstimator:
         rest = self.rest.test(t, camera, features, newest, state, self.history)
         if rest.rest:
             return self._trusted(self._still_frame(frame_id, t, rest))
-        pred, pred_cov, reason = self.factors.predict(state, t)
-        if pred is None:
+        T_prior, C_prior, reason = self.factors.predict_camera(state, t)
+        if T_prior is None:
             return self._lose(frame_id, reason)
-        T_i_c = invert_transform(self.factors.T_c_i)
-        T_prior = pred.T_w_i @ T_i_c
-        # the prediction's uncertainty: preintegration noise, and the newest keyframe's velocity
-        # and biases (not in the window's pose marginals) through the elapsed time
-        dt = t - state.t
-        C_prior = pred_cov + np.diag([(s.predict_gyro_sigma * dt) ** 2] * 3
-                                     + [(s.predict_velocity_sigma * dt) ** 2] * 3)
         try:
             fl = self.landmarks.process(frame_id, t, camera, T_prior, features, prior_covariance=C_prior)
         except NumericalError as exc:

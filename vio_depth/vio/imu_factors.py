@@ -172,6 +172,19 @@ class ImuFactors:
             return None, None, reason
         return self.predict_with(pim, state, t1)
 
+    def predict_camera(self, state: KeyframeState, t1: float) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """``(T_w_c (4, 4), (6, 6) covariance, "")`` of the camera at ``t1`` seconds by IMU
+        prediction from ``state``, or ``(None, None, why)``. The covariance: the preintegration
+        noise, and the state's velocity and biases (not in the window's pose marginals) through the
+        elapsed time (``predict_gyro_sigma``, ``predict_velocity_sigma``)."""
+        s = self.settings
+        pred, C, reason = self.predict(state, t1)
+        if pred is None:
+            return None, None, reason
+        dt = t1 - state.t
+        C = C + np.diag([(s.predict_gyro_sigma * dt) ** 2] * 3 + [(s.predict_velocity_sigma * dt) ** 2] * 3)
+        return pred.T_w_i @ self.T_i_c, C, ""
+
     def predict_with(self, pim, state: KeyframeState, t1: float, covariance: bool = True):
         """:meth:`predict` with a preintegration ``pim`` from ``state.t`` to ``t1`` that was
         integrated at other biases (gtsam corrects it to ``state``'s biases to first order):

@@ -23,12 +23,30 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from matchers import Features
 from vio_core.camera import Camera
 
 from ..landmarks import ProcessWindow, WindowBackendSettings
 from .dynamic_start import attempt_dynamic
-from .initializer import Candidate, Initializer, InitResult
+from .initializer import Candidate, Initializer, InitKind, InitResult
+
+
+def catch_up_candidates(candidates: list[Candidate], res: InitResult, n: int) -> list[Candidate]:
+    """The ``candidates`` collected after a dynamic initialisation's newest keyframe while its
+    attempt ran in the worker process: up to ``n`` of them (``catch_up_keyframes``), spread evenly
+    in time up to the newest, to join the start's window (without them the first keyframe tracked
+    would be matched across every frame of the attempt's and the window's lags: ~20 frames, and on
+    a street drive ~20 common landmarks decided the scale)."""
+    last = res.keyframes[-1]
+    later = [c for c in candidates if c.frame_id > last.frame_id]
+    if n == 0 or not later or res.kind != InitKind.DYNAMIC:
+        return []
+    times = np.array([c.t for c in later])
+    targets = last.t + (times[-1] - last.t) * np.arange(1, n + 1) / n
+    picks = sorted({int(np.argmin(np.abs(times - g))) for g in targets})
+    return [later[i] for i in picks]
 
 
 @dataclass
@@ -102,10 +120,15 @@ class RemoteInitializer:
                 return self._land()
         return res
 
-    def _land(self) -> InitResult | None:
-        """The attempt's outcome when due (module docstring), else None."""
+    def finish(self) -> InitResult | None:
+        """The outcome of the attempt in flight, waited for now (the sequence ended before it was
+        due: :meth:`~.estimator.VioEstimator.finish`), or None when none is in flight."""
+        return None if self._flight is None else self._land(now=True)
+
+    def _land(self, now: bool = False) -> InitResult | None:
+        """The attempt's outcome when due (module docstring) or ``now``, else None."""
         f, b = self._flight, self.settings
-        if not (self._frames - f.at >= b.init_lag_frames or (b.apply_when_ready and self.backend.call_ready())):
+        if not (now or self._frames - f.at >= b.init_lag_frames or (b.apply_when_ready and self.backend.call_ready())):
             return None
         self._flight = None
         self.landed_after = self._frames - f.at

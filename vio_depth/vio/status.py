@@ -8,7 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .imu_factors import KeyframeState
 from .initializer import InitKind
+from .settings import VioSettings
 
 
 class VioStatus(str, enum.Enum):
@@ -51,3 +53,19 @@ class VioFrame:
     @property
     def ok(self) -> bool:
         return self.T_w_c is not None
+
+
+def implausible(state: KeyframeState, settings: VioSettings) -> str:
+    """Why a keyframe's ``state`` is implausible ("" when it is fine): not finite, or its speed or
+    biases beyond ``max_speed_m_s``, ``max_accel_bias``, ``max_gyro_bias``."""
+    s = settings
+    if not np.all(np.isfinite(state.T_w_i)):
+        return "the estimate is not finite"
+    speed = float(np.linalg.norm(state.velocity_w))
+    if not speed <= s.max_speed_m_s:
+        return f"estimated speed {speed:.1f} m/s (> {s.max_speed_m_s})"
+    if not np.linalg.norm(state.accel_bias) <= s.max_accel_bias:
+        return f"estimated accelerometer bias {np.linalg.norm(state.accel_bias):.2f} m/s^2 (> {s.max_accel_bias})"
+    if not np.linalg.norm(state.gyro_bias) <= s.max_gyro_bias:
+        return f"estimated gyroscope bias {np.linalg.norm(state.gyro_bias):.3f} rad/s (> {s.max_gyro_bias})"
+    return ""
