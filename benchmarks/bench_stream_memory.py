@@ -229,7 +229,7 @@ class LoopVio:
 
     def __init__(self, folder: Path, matcher: str, guard: float | None, points: str | None = None,
                  backend: WindowBackendSettings | None = None, history_frames: int | None = None,
-                 preset: str = "vio"):
+                 preset: str = "vio_offline"):
         self.folder = folder
         self.seq = open_sequence(folder)
         self.frames = [self.seq[i] for i in range(len(self.seq))]
@@ -332,8 +332,9 @@ def main(argv=None) -> int:
     parser.add_argument("--backends", default="inline", type=lambda t: [parse_backend(b) for b in t.split(",") if b],
                         help="vio rows, comma-separated: inline, process or process:LAG (the landmark window in a "
                              "worker; its memory is sampled too)")
-    parser.add_argument("--vio-preset", default="vio", choices=("vio", "vio_realtime"),
-                        help="vio rows: the pose preset (vio_realtime: iSAM2 window, bridges when learnt better; "
+    parser.add_argument("--vio-preset", default="vio_offline", choices=("vio_offline", "vio", "vio_realtime"),
+                        help="vio rows: the pose preset (vio_offline: vio's settings until 2026-12-07, batch window; "
+                             "vio / vio_realtime, its former name: iSAM2 window, bridges when learnt better; "
                              "--backends still sets where the window runs)")
     parser.add_argument("--history-frames", type=int, default=None,
                         help="vio rows: VioSettings.history_frames (the poses remembered; default 20 000)")

@@ -1,7 +1,8 @@
-"""The odometry as a robot sees it: ``--poses vio`` streamed through ``FrameStream``, each frame's
-pose taken when the frame is processed (no offline backward pass), against the sequence's
-ground truth; for checking that a cheaper setting of the landmark window keeps its accuracy
-(issue 24).
+"""The odometry as a robot sees it: ``--poses vio_offline`` (``vio`` until 2026-12-07: the window
+inline; ``vio`` is now the camera-rate configuration, measured by bench_realtime.py) streamed
+through ``FrameStream``, each frame's pose taken when the frame is processed (no offline backward
+pass), against the sequence's ground truth; for checking that a cheaper setting of the landmark
+window keeps its accuracy (issue 24).
 
 Sequences (all SIMULATED: rendered images, IMU and disparity):
 
@@ -70,7 +71,7 @@ def run(name: str, matcher: str, changes: dict, cache: Path) -> dict:
         folder = ROOT / "sample_sequences" / name
         disparity = SimulatedDisparitySource(0)
     seq = open_sequence(folder)
-    settings = PipelineSettings.from_presets(poses="vio", pairing=pairing, matcher=matcher)
+    settings = PipelineSettings.from_presets(poses="vio_offline", pairing=pairing, matcher=matcher)
     if matcher == "klt":  # its corners sit on depth edges (bench_realtime's klt rows do the same)
         settings = replace(settings, rescaler=replace(settings.rescaler, max_disparity_spread=0.1))
     stream = FrameStream(seq.camera, with_changes(settings, changes), imu_calibration=seq.imu,
@@ -144,7 +145,7 @@ def main(argv=None) -> int:
     variants = [("defaults (baseline)", {})] + list(args.changes)
     for _, changes in variants:
         try:
-            with_changes(PipelineSettings.from_presets(poses="vio"), changes)
+            with_changes(PipelineSettings.from_presets(poses="vio_offline"), changes)
         except (ValueError, TypeError) as error:
             parser.error(str(error))
     print(f"# machine: {platform.machine()} {platform.processor() or ''}, {os.cpu_count()} cores, load average "

@@ -72,7 +72,7 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, metavar="FILE", help="TOML settings file (see `vio-depth config --dump`)")
     g = p.add_argument_group("pipeline")
     g.add_argument("--matcher", default=None,
-                   help="matcher preset (see `vio-depth presets`; default: klt with --poses gt or vio_realtime, sift "
+                   help="matcher preset (see `vio-depth presets`; default: klt with --poses gt or vio, sift "
                         "with the other poses or --guided-matching)")
     g.add_argument("--guided-matching", action="store_true", default=None,
                    help="match each keypoint only inside its epipolar band, widened by the pose's stated "
@@ -81,8 +81,9 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
                    help="device of a learned matcher or Depth Anything model (default: cuda when available)")
     g.add_argument("--poses", default=None, help="pose source: gt (sequence poses), imu (gtsam preintegration), "
                                                  "imu_real_mav (imu, accelerometer noise x10 for a real IMU on a "
-                                                 "vibrating vehicle) or vio (visual-inertial odometry from the "
-                                                 "images and the IMU alone; docs/vio.md)")
+                                                 "vibrating vehicle), vio (visual-inertial odometry from the "
+                                                 "images and the IMU alone, at camera rate; docs/vio.md) or "
+                                                 "vio_offline (vio inline with SIFT: 10-20 x slower)")
     g.add_argument("--pairing", default=None,
                    help="pair-selection preset: kitti (5 deg / 1.5 m, default), ddad (5 deg / 2 m), indoor (5 deg / 0.15 m)")
     g.add_argument("--min-rotation", type=float, default=None, metavar="DEG", help="override the rotation threshold")
@@ -101,8 +102,8 @@ def _add_settings_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-temporal", action="store_true", default=None,
                    help="disable the Kalman filter on (alpha, beta)")
     g.add_argument("--points", default=None,
-                   help="metric point source: sfm (default; vio with --poses vio_realtime), landmarks (a gtsam "
-                        "landmark window), vio (the odometry's own landmarks, with --poses vio or vio_realtime), or "
+                   help="metric point source: sfm (default; vio with --poses vio), landmarks (a gtsam "
+                        "landmark window), vio (the odometry's own landmarks, with --poses vio or vio_offline), or "
                         "lidar:N / random:N sampled from ground truth")
     g.add_argument("--seed", type=int, default=None, help="seed of RANSAC, random reference points and "
                                                           "the SIMULATED disparity (default 0)")

@@ -69,16 +69,16 @@ def _vio_row(default: bool, ate_m: float, abs_rel: float, matcher: str = "sift")
                   matcher=matcher)
 
 
-def test_a_fast_configuration_is_judged_against_the_default_row_of_the_same_run():
+def test_a_fast_configuration_is_judged_against_the_reference_row_of_the_same_run():
     base = _vio_row(True, 0.010, 0.020)
     text, held = br.accuracy_against_default(_vio_row(False, 0.0109, 0.0209, "klt"), [base])
-    assert held and "ATE 1.09 x the default's 10.0 mm (within +10%)" in text
+    assert held and "ATE 1.09 x the reference's 10.0 mm (within +10%)" in text
     text, held = br.accuracy_against_default(_vio_row(False, 0.0112, 0.0200, "klt"), [base])
     assert not held and "beyond +10%" in text
     text, held = br.accuracy_against_default(_vio_row(False, 0.0100, 0.0212, "klt"), [base])
     assert not held and "AbsRel 1.06 x" in text and "beyond +5%" in text
     text, held = br.accuracy_against_default(_vio_row(False, 0.0100, 0.0212, "klt"), [])
-    assert held and "no default row" in text
+    assert held and "no reference row" in text
 
 
 def test_vio_set_replaces_odometry_and_window_fields_and_refuses_others():
@@ -155,10 +155,10 @@ def test_pose_presets_must_be_the_odometry_presets():
 
 
 def test_preset_rows_take_the_presets_matcher_and_points_unless_named():
-    """A ``--pose-presets`` row is built as ``vio-depth run --poses NAME`` builds it: vio with sift
-    and two-view points, vio_realtime with klt and the odometry's own landmarks; ``--vio-points``
+    """A ``--pose-presets`` row is built as ``vio-depth run --poses NAME`` builds it: vio_offline with
+    sift and two-view points, vio with klt and the odometry's own landmarks; ``--vio-points``
     names the points for every preset instead."""
-    rows = br.preset_specs(["vio", "vio_realtime"], [], ["afap"])
-    assert rows == [("sift", "sfm", "afap", "vio"), ("klt", "vio", "afap", "vio_realtime")]
+    rows = br.preset_specs(["vio_offline", "vio"], [], ["afap"])
+    assert rows == [("sift", "sfm", "afap", "vio_offline"), ("klt", "vio", "afap", "vio")]
     named = br.preset_specs(["vio_realtime"], ["sfm", "vio"], ["afap"])
     assert [r[1] for r in named] == ["sfm", "vio"]

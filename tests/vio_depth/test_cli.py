@@ -188,7 +188,7 @@ def test_offline_backfill_gives_the_first_frame_depth_from_a_later_keyframe(tmp_
 
 
 def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
-    assert main(["config", "--dump", "--poses", "vio"]) == 0
+    assert main(["config", "--dump", "--poses", "vio_offline"]) == 0
     assert "[matcher.guided]\nenabled = false" in capsys.readouterr().out  # sift's, off by default
     assert main(["config", "--dump", "--guided-matching"]) == 0  # sift when nothing names a matcher
     out = capsys.readouterr().out
@@ -200,8 +200,8 @@ def test_guided_matching_flag_turns_it_on_for_sift_only(capsys):
 def test_presets_mark_the_matcher_each_pose_source_brings(capsys):
     assert main(["presets"]) == 0
     lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")}
-    assert lines["klt"].endswith("(default with --poses gt, vio_realtime)")
-    assert lines["sift"].endswith("(default with --poses imu, imu_real_mav, vio)")
+    assert lines["klt"].endswith("(default with --poses gt, vio, vio_realtime)")
+    assert lines["sift"].endswith("(default with --poses imu, imu_real_mav, vio_offline)")
     assert lines["gt"].endswith("(default)") and "default" not in lines["disk+lightglue"]
 
 

@@ -13,7 +13,7 @@ Before a refinement a caller may also keep the point of a track that only gained
 keyframe's observation (:func:`extended_tracks`) and judge that observation against it
 (:func:`gate_extensions`, the residual gate of the prediction) -- the refinement and the
 triangulation after it see the track whole either way. With KLT tracks almost every track of
-a keyframe is such a one, and the odometry's window in a worker (``vio_realtime``) spends a
+a keyframe is such a one, and the odometry's window in a worker (``--poses vio``) spends a
 fifth less on a keyframe (docs/benchmarks.md "The worker's keyframe update, 2026-12-07 (late)").
 """
 

@@ -187,7 +187,7 @@ class LandmarkSettings:
             (:func:`~.incremental.gate_extensions`) instead of the track being triangulated
             again (after the refinement every track the new keyframe sees is triangulated
             again either way). With KLT tracks nearly every track is such a one: this saves a
-            fifth of a keyframe update of the odometry's window (``vio_realtime``).
+            fifth of a keyframe update of the odometry's window (``--poses vio``).
     """
 
     pose_prior: PosePriorSettings | None = None

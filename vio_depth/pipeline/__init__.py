@@ -35,8 +35,8 @@ from .pipeline import Pipeline
 from .point_source import POINT_SPEC_FORMS, PointSourceKind, PointSourceSpec, parse_points_spec
 from .points import TwoViewPoints, most_certain_per_keypoint
 from .result import PIPELINE_STAGES, FrameResult, LandmarkInfo, PairAttempt, PointsOutcome, PreparedFrame
-from .settings import (POSE_PRESETS, PRESET_FAMILIES, TRACKER_DEFAULTS, PipelineSettings, PoseSettings,
-                       chooses_preset, default_matcher_preset, default_points_spec,
+from .settings import (POSE_PRESETS, PRESET_FAMILIES, TRACKER_DEFAULTS, VIO_CAMERA_RATE, PipelineSettings,
+                       PoseSettings, chooses_preset, default_matcher_preset, default_points_spec,
                        with_tracker_defaults)
 from .source_landmarks import SourceLandmarkPoints
 from .status import FrameStatus, PairStatus, decide_frame_status
@@ -50,6 +50,7 @@ __all__ = [
     "POSE_PRESETS",
     "PRESET_FAMILIES",
     "TRACKER_DEFAULTS",
+    "VIO_CAMERA_RATE",
     "FrameResult",
     "FrameStatus",
     "FrameStream",

@@ -36,38 +36,46 @@ from ..vio import VioSettings
 #: the settings of a pose source: one type per source (:func:`vio_depth.pipeline.build_pose_stage`)
 PoseSettings = GroundTruthPoseSettings | ImuPoseSettings | VioSettings
 
+#: The odometry at camera rate (``--poses vio`` since 2026-12-07, before ``vio_realtime``): its
+#: window's keyframe updates in a worker process, taken over 4 frames later and refined by iSAM2
+#: with at most 600 landmarks; the tracks a keyframe only extends gated against their points
+#: instead of triangulated twice; the frames between keyframes bridged again only when the window
+#: learnt their keyframe pair better, at the frame after a take-over; KLT tracks and the odometry's
+#: own landmarks unless a matcher or points are named (:func:`default_matcher_preset`,
+#: :func:`default_points_spec`). docs/benchmarks.md "vio_realtime, 2026-12-06" to "`--poses vio` at
+#: camera rate by default, 2026-12-07".
+VIO_CAMERA_RATE = VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
+                              window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True,
+                                             ba_max_landmarks=600),
+                              bridge_every_update=False, defer_bridge_refresh=True)
+
 #: pose-source presets (``--poses``): ``gt`` (the sequence's poses), ``imu`` (gtsam
 #: preintegration, the covariance calibrated on EuRoC V1_01), ``imu_real_mav`` (``imu`` with the
 #: accelerometer noise x10, for a real MEMS IMU on a vibrating vehicle; docs/benchmarks.md),
-#: ``vio`` (visual-inertial odometry: no sequence pose is used; docs/vio.md) and ``vio_realtime``
-#: (``vio`` with its window's keyframe updates in a worker process, taken over 4 frames later,
-#: and KLT tracks unless a matcher is named: :func:`default_matcher_preset`; docs/benchmarks.md
-#: "vio_realtime, 2026-12-06"; since 2026-12-07 its window is refined by iSAM2 and the frames
-#: between keyframes are bridged again only when the window learnt their keyframe pair better,
-#: not after every update, and the lag is 4 frames: docs/benchmarks.md "vio_realtime's worker:
-#: iSAM2, and bridges only when learnt better"; and the tracks a keyframe only extends are gated
-#: against their points before the refinement instead of triangulated twice, and at most 600
-#: landmarks (not 800) enter its refinement: "The worker's keyframe update, 2026-12-07 (late)"; the
-#: bridged frames are re-posed at the frame after a take-over, not in it: "Bridges after the take-over").
-#: They live here, above
+#: ``vio`` (visual-inertial odometry from the images and the IMU alone at camera rate:
+#: :data:`VIO_CAMERA_RATE`; docs/vio.md), ``vio_offline`` (the same odometry with its window
+#: inline, batch-refined, SIFT and two-view points: :class:`VioSettings`' own defaults, ``vio``
+#: until 2026-12-07; 10-20 x slower, less drift on short indoor clips, fewer frames with depth)
+#: and ``vio_realtime`` (the former name of ``vio``'s settings, kept so that commands and config
+#: files written before keep working). They live here, above
 #: :mod:`vio_depth.poses` and :mod:`vio_depth.vio`, because they name the settings of both.
 POSE_PRESETS: Presets = Presets("pose source", {
     "gt": GroundTruthPoseSettings(),
     "imu": ImuPoseSettings(),
     "imu_real_mav": ImuPoseSettings(accel_noise_scale=10.0),
-    "vio": VioSettings(),
-    "vio_realtime": VioSettings(backend=WindowBackendSettings(kind="process", lag_frames=4),
-                                window=replace(VioSettings().window, solver="isam2", gate_extended_tracks=True,
-                                               ba_max_landmarks=600),
-                                bridge_every_update=False, defer_bridge_refresh=True),
+    "vio": VIO_CAMERA_RATE,
+    "vio_offline": VioSettings(),
+    "vio_realtime": VIO_CAMERA_RATE,
 }, default="gt", descriptions={
     "gt": "the sequence's own metric poses",
     "imu": "gtsam IMU preintegration between keyframes (its covariance enters the points' sigma)",
     "imu_real_mav": "imu with the accelerometer noise x10: a real MEMS IMU on a vibrating vehicle "
                     "(calibrated on EuRoC V1_01)",
-    "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate)",
-    "vio_realtime": "vio at camera rate: the window in a worker process (taken over 4 frames later, iSAM2, "
-                    "600 landmarks), KLT tracks; drifts ~10 % more, starts 1-2 s later (short clips: less depth)",
+    "vio": "visual-inertial odometry from the images and the IMU alone (sequence poses only evaluate), "
+           "at camera rate: its window in a worker process, KLT tracks, its own landmarks as points",
+    "vio_offline": "vio with its window inline, SIFT and two-view points (vio until 2026-12-07): 10-20 x "
+                   "slower; less drift on short indoor clips",
+    "vio_realtime": "the same as vio (its name until 2026-12-07)",
 })
 
 
@@ -112,13 +120,13 @@ def default_matcher_preset(poses: PoseSettings) -> str:
     on KITTI-tiny's 1242x375 frames where sift runs 0.37 x, and with :data:`TRACKER_DEFAULTS` writes
     no wrong frame and a lower AbsRel than sift on street (0.0194 vs 0.0219), room (0.0121 vs
     0.0127) and KITTI-tiny (0.0434 vs 0.0461) (docs/benchmarks.md "The default matcher, 2026-12-06").
-    ``klt`` too with the odometry's window in a worker process (``vio_realtime``): the worker
+    ``klt`` too with the odometry's window in a worker process (``vio``, :data:`VIO_CAMERA_RATE`): the worker
     answers frames from a window a few frames old, which tracks follow and SIFT's descriptor
     matches against keyframes do not (a lag of 6 cost SIFT 13.8 vs 6.7 mm ATE; with klt, lag 3,
     the generated ASL datasets kept 20 Hz with the default's ATE and AbsRel on 2026-12-06's fast
     machine; lag 4 since 2026-12-07).
-    ``sift`` with the other estimated pose sources (``imu``, ``imu_real_mav``, ``vio``): KLT's
-    odometry drifts twice as far as sift's on street (ATE 12.7 vs 6.0 cm), and klt under ``imu``
+    ``sift`` with the other estimated pose sources (``imu``, ``imu_real_mav``, ``vio_offline``): KLT's
+    inline odometry drifts twice as far as sift's on street (ATE 12.8 vs 5.9 cm), and klt under ``imu``
     is unmeasured. :class:`PipelineSettings` itself keeps ``sift`` as its field default."""
     if isinstance(poses, GroundTruthPoseSettings):
         return "klt"
@@ -132,14 +140,14 @@ def default_points_spec(poses: PoseSettings) -> str:
     (the command line's ``--points``, a config file's ``points``).
 
     ``vio`` (the odometry's own landmarks) with the odometry's window in a worker process
-    (``vio_realtime``): the camera-rate configuration, and two-view points would match and
+    (``vio``, :data:`VIO_CAMERA_RATE`): the camera-rate configuration, and two-view points would match and
     triangulate every frame a second time. On the 752x564 generated ASL loop (SIMULATED, 2-core
-    machine, 2026-12-07) ``vio_realtime`` made 22.7 frames/s as fast as possible with its own
+    machine, 2026-12-07) that configuration made 22.7 frames/s as fast as possible with its own
     landmarks against 16.9 with two-view points (at 20 Hz 4 against 76 frames dropped), as many
     frames with depth (314 vs 317 of 400) and AbsRel 0.0021 vs 0.0024; offline, where the backward
     pass gives the leading frames two-view points, street 105/130 frames either way, AbsRel 0.0209
     vs 0.0201, room 0.0134 vs 0.0132, none wrong (docs/benchmarks.md "vio_realtime brings its
-    landmarks"). ``sfm`` (two-view) with every other pose source: with ``vio`` (sift, inline) the
+    landmarks"). ``sfm`` (two-view) with every other pose source: with ``vio_offline`` (sift, inline) the
     odometry's landmarks wrote 2 street frames wrong where two-view wrote none."""
     if isinstance(poses, VioSettings) and poses.backend.kind == "process":
         return "vio"
@@ -220,10 +228,10 @@ class PipelineSettings:
         """Settings from preset names as ``vio-depth run`` builds them (without a config file): a
         matcher and points not named follow the pose source (:func:`default_matcher_preset`,
         :func:`default_points_spec`: klt with ``gt``; klt and the odometry's own landmarks with
-        ``vio_realtime``; sift and two-view pairs otherwise), where :meth:`from_presets` keeps the
+        ``vio``; sift and two-view pairs otherwise), where :meth:`from_presets` keeps the
         library's field defaults (sift, two-view) whatever the poses. ``presets``: the other
         arguments of :meth:`from_presets`. A robot's :class:`~vio_depth.pipeline.FrameStream` at
-        camera rate: ``PipelineSettings.for_pose_source("vio_realtime")`` (``from_presets`` would
+        camera rate: ``PipelineSettings.for_pose_source("vio")`` (``from_presets`` would
         give it sift's matching against keyframes a few frames old and two-view points, the
         combination that lost accuracy and did not keep 20 Hz: docs/benchmarks.md)."""
         pose_settings = POSE_PRESETS[poses if poses is not None else POSE_PRESETS.default]

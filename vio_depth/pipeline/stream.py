@@ -77,7 +77,7 @@ class FrameStream:
             on 2 cores, ``cv2.setNumThreads(1)`` with ``prefetch=2`` is what the CLI run does.
 
     A stream holds threads once a frame was submitted, and with a ``process`` backend
-    (``--poses vio_realtime``) a worker process from the start: :meth:`close` it (or use it as a
+    (``--poses vio``) a worker process from the start: :meth:`close` it (or use it as a
     context manager) when done.
     """
 
@@ -110,7 +110,7 @@ class FrameStream:
     @property
     def workers(self) -> tuple:
         """The worker processes (:class:`~vio_depth.landmarks.ProcessWindow`) the stream started
-        (``vio_realtime``'s window; a ``process`` points window); :meth:`close` stops them."""
+        (``--poses vio``'s window; a ``process`` points window); :meth:`close` stops them."""
         return self._poses.workers + self.pipeline.workers
 
     def push(self, image, disparity, *, timestamp: float | None = None, T_w_c=None, imu=None,

@@ -8,7 +8,7 @@ module             job
 ``frame_loop``     the forward pass: every frame in order through the pipeline
 ``frame_writer``   :class:`FrameWriter`: each frame's files, exports, evaluation, record, journal line
 ``output_poses``   :class:`OutputPoses`: the run's own pose of each frame, the only one its outputs see
-``backfill``       :func:`backfill_leading_frames`: the offline backward pass
+``backfill``       :func:`backfill_leading_frames`: the offline backward pass (:func:`replay_posed_late` before it)
 ``finish``         :func:`finish_run`: the summary and the outputs that need every frame
 ``overlap``        :class:`Prefetcher`, :class:`OrderedWriter`: the worker threads of a run
 ``interrupt``      :func:`deferred_interrupts`: Ctrl-C / SIGTERM raised between frames, never inside a lock
@@ -34,7 +34,7 @@ from .overlap import OrderedWriter, Prefetcher
 from .pose_calibration import PoseCalibratedSequence, calibrate_run_poses
 from .record import RECORD_SCHEMA_VERSION, FrameRecord, RunHeader, frame_record, read_frames_jsonl
 from .resume import ResumeError
-from .backfill import backfill_leading_frames
+from .backfill import backfill_leading_frames, replay_posed_late
 from .frame_writer import FrameWriter
 from .output_poses import OutputPoses
 from .runner import run_header, run_sequence
@@ -94,6 +94,7 @@ __all__ = [
     "read_config",
     "resolve_config",
     "read_frames_jsonl",
+    "replay_posed_late",
     "run_header",
     "run_sequence",
     "check_out_path",

@@ -170,7 +170,7 @@ def resolve_config(presets: Mapping[str, str], data: Mapping[str, Any] | None = 
     file choose (``klt`` with the sequence's poses, ``sift`` otherwise); a ``[matcher]`` table
     without ``preset`` refines that matcher. When the file names no ``points``, they are
     :func:`~vio_depth.pipeline.default_points_spec` of the pose source (``vio`` with
-    ``vio_realtime``, ``sfm`` otherwise).
+    ``--poses vio``, ``sfm`` otherwise).
 
     Args:
         source: the file's name, prefixed to its errors.

@@ -233,14 +233,14 @@ class VioSettings:
             between them (a bridge, :mod:`vio_depth.vio.bridge`) after every window update
             while both keyframes are in it (True, the default), or only when the pair is new
             and once the window knows the pair's relative pose 20 % better than when it was
-            last bridged (False: ``vio_realtime``; meanwhile they follow the later keyframe as
+            last bridged (False: ``--poses vio``; meanwhile they follow the later keyframe as
             it moves). The eager refresh re-poses some 60 frames of a 16-keyframe window at
             every update: 33 ms a keyframe on the 752x564 ASL loop, 14 ms without it
             (docs/benchmarks.md "vio_realtime's worker").
         defer_bridge_refresh: a keyframe update taken over from the worker process re-poses the
             bridged frames (``bridge_every_update``) at the next frame that takes none over, or
             when the odometry's poses of other frames are read, not in the take-over frame (True:
-            ``vio_realtime``; the take-over frame is the slowest of a camera-rate stream, and the
+            ``--poses vio``; the take-over frame is the slowest of a camera-rate stream, and the
             bridged frames are past ones: docs/benchmarks.md "Bridges after the take-over").
     """
 

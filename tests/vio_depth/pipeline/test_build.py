@@ -10,6 +10,7 @@ from vio_core import Camera, InputError, SettingsError, UnknownNameError
 from vio_depth.frame import Frame, ImuData
 from vio_depth.pipeline import (
     POSE_PRESETS,
+    VIO_CAMERA_RATE,
     FrameStream,
     LandmarkPointsStage,
     Pipeline,
@@ -53,9 +54,12 @@ def _frame(index: int, t: float) -> Frame:
 
 
 def test_each_pose_preset_builds_its_source_from_its_settings_type():
-    assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio", "vio_realtime"] and POSE_PRESETS.default == "gt"
-    assert POSE_PRESETS["vio"] == VioSettings() and POSE_PRESETS["imu"] == ImuPoseSettings()
-    realtime = POSE_PRESETS["vio_realtime"]
+    assert list(POSE_PRESETS) == ["gt", "imu", "imu_real_mav", "vio", "vio_offline", "vio_realtime"]
+    assert POSE_PRESETS.default == "gt"
+    assert POSE_PRESETS["vio_offline"] == VioSettings() and POSE_PRESETS["imu"] == ImuPoseSettings()
+    # --poses vio is the camera-rate configuration; vio_realtime, its former name, the same settings
+    realtime = POSE_PRESETS["vio"]
+    assert POSE_PRESETS["vio_realtime"] == realtime == VIO_CAMERA_RATE
     assert realtime.backend.kind == "process" and realtime.backend.lag_frames == 4
     # and only that, iSAM2 and bridges once (docs/benchmarks.md "vio_realtime's worker ...")
     assert realtime.window.solver == "isam2" and VioSettings().window.solver == "batch"
@@ -99,6 +103,9 @@ def test_the_pose_choice_reaches_the_estimator_by_explicit_calls():
     assert isinstance(pipeline.tracker.estimator, VioEstimator)
     assert pipeline.tracker.matcher is pipeline.matcher and isinstance(pipeline.matcher, SiftMatcher)
     assert pipeline.fresh().tracker is pipeline.tracker
+    assert len(pipeline.workers) == 1  # the odometry's window in a worker process, until closed
+    pipeline.close()
+    assert all(not w.alive for w in pipeline.workers)
 
 
 def test_stream_sources_are_built_when_the_first_imu_samples_arrive():
@@ -131,7 +138,7 @@ def test_frame_stream_builds_through_the_builder():
     imu = FrameStream(CAM, PipelineSettings.from_presets(poses="imu"), imu_calibration=cal).pipeline
     assert isinstance(imu.pose_source, LazyImuPoses) and imu.tracker is None
     assert imu.fresh().tracker is None  # the stage, not the wrapper's methods, says whether it tracks
-    vio = FrameStream(CAM, PipelineSettings.from_presets(poses="vio"), imu_calibration=cal).pipeline
+    vio = FrameStream(CAM, PipelineSettings.from_presets(poses="vio_offline"), imu_calibration=cal).pipeline
     assert isinstance(vio.tracker, LazyImuPoses) and vio.tracker.matcher is vio.matcher is not None
     gt = FrameStream(CAM, PipelineSettings.from_presets(points="lidar:16"), pose_kind="mocap").pipeline
     assert isinstance(gt.pose_source, GroundTruthPoses) and gt.pose_source.pose_kind == "mocap"
@@ -169,8 +176,8 @@ def test_stages_build_a_matcher_only_where_one_is_needed_and_share_it():
     assert stages.matcher is None and stages.points is None and stages.poses == PoseStage(gt)
     stages = build_stages(PipelineSettings(), poses=gt, disparity_source=_no_disparity)
     assert isinstance(stages.matcher, SiftMatcher) and stages.points.matcher is stages.matcher
-    tracker = build_pose_stage("vio", _Sequence(_imu()), SiftMatcher())
-    stages = build_stages(PipelineSettings.from_presets(poses="vio"), poses=tracker.source,
+    tracker = build_pose_stage("vio_offline", _Sequence(_imu()), SiftMatcher())
+    stages = build_stages(PipelineSettings.from_presets(poses="vio_offline"), poses=tracker.source,
                           disparity_source=_no_disparity)
     assert stages.poses == tracker and stages.matcher is tracker.source.matcher  # the tracker's own matcher
     with pytest.raises(InputError, match="must use the pipeline's matcher"):

@@ -49,8 +49,8 @@ def room_vio():
     matcher calls inside the points stage, matcher calls in all)."""
     seq = open_sequence(ROOM)
     matcher = CountingMatcher(create_matcher("sift"))
-    pipe = Pipeline(PipelineSettings.from_presets(poses="vio", points="vio", pairing="indoor"), sequence=seq,
-                    matcher=matcher)
+    pipe = Pipeline(PipelineSettings.from_presets(poses="vio_offline", points="vio", pairing="indoor"), sequence=seq,
+                    matcher=matcher)  # the odometry inline: its landmarks in the frame that tracked them
     stage_calls = []
     process = pipe.points.process
 
@@ -163,13 +163,15 @@ def test_the_backward_pass_pairs_the_leading_frames_two_view_with_the_odometrys_
     """The odometry's landmarks exist only for the frames it tracked live; the leading frames,
     posed only once its start succeeded, get their depth in the offline backward pass from
     two-view points with those poses (before: 5 of the first 22 room frames, now all 22;
-    street under vio_realtime: 71 -> 105 of 130 frames written, none wrong)."""
+    street under vio_realtime, now vio: 71 -> 105 of 130 frames written, none wrong). 60 frames:
+    the camera-rate odometry's start is taken over at frame 44."""
     seq = open_sequence(ROOM)
-    settings = PipelineSettings.from_presets(poses="vio", points="vio", pairing="indoor", matcher="klt")
+    settings = PipelineSettings.for_pose_source("vio", pairing="indoor")  # klt, the odometry's landmarks
+    assert settings.points.kind.value == "vio"
     with Pipeline(settings, sequence=seq) as pipe:
         backward = pipe.fresh(inline_window=True, offline_points=True)
         assert backward.settings.points.kind.value == "sfm" and backward.points.matcher is pipe.matcher
-        run_sequence(seq, pipe, tmp_path / "out", RunSettings(max_frames=40))
+        run_sequence(seq, pipe, tmp_path / "out", RunSettings(max_frames=60))
     _, frames = read_frames_jsonl(tmp_path / "out" / "frames.jsonl")
     backfilled = [f for f in frames if f.get("backfilled") and f["alpha"] is not None]
     forward = [f for f in frames if not f.get("backfilled") and f["alpha"] is not None]

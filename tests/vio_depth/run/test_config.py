@@ -10,8 +10,8 @@ from vio_depth.run import load_config, read_config, resolve_config
 
 
 @pytest.mark.parametrize("poses, expected", [("gt", KltSettings), ("imu", SiftSettings),
-                                             ("imu_real_mav", SiftSettings), ("vio", SiftSettings),
-                                             ("vio_realtime", KltSettings)])
+                                             ("imu_real_mav", SiftSettings), ("vio", KltSettings),
+                                             ("vio_offline", SiftSettings), ("vio_realtime", KltSettings)])
 def test_the_matcher_follows_the_pose_source_when_nothing_names_one(poses, expected):
     assert default_matcher_preset(POSE_PRESETS[poses]) == ("klt" if expected is KltSettings else "sift")
     by_flag, _ = resolve_config({"poses": poses})
@@ -36,7 +36,7 @@ def test_a_matcher_table_without_a_preset_refines_the_default_matcher():
     assert isinstance(s.matcher, KltSettings) and s.matcher.max_tracks == 300
     assert s.rescaler.max_disparity_spread == 0.2  # the file's own value beats the tracker's default
     assert s.pairing.allow_weak_pairs is False
-    s, _ = resolve_config({"poses": "vio"}, {"matcher": {"ratio": 0.7}})
+    s, _ = resolve_config({"poses": "vio_offline"}, {"matcher": {"ratio": 0.7}})
     assert isinstance(s.matcher, SiftSettings) and s.matcher.ratio == 0.7
     with pytest.raises(SettingsError, match=r"c\.toml: unknown setting matcher\.ratio.*default matcher, klt with "
                                             r"these poses; add preset = \"sift\""):
@@ -65,20 +65,26 @@ def test_read_config_and_load_config(tmp_path):
         read_config(path)
 
 
-def test_vio_realtime_is_vio_with_the_window_in_a_worker_and_klt():
-    s, _ = resolve_config({"poses": "vio_realtime"})
+@pytest.mark.parametrize("name", ["vio", "vio_realtime"])
+def test_vio_is_the_odometry_with_the_window_in_a_worker_and_klt(name):
+    s, _ = resolve_config({"poses": name})
     assert s.poses.backend.kind == "process" and s.poses.backend.lag_frames == 4
     assert isinstance(s.matcher, KltSettings) and s.pairing.allow_weak_pairs is False
-    assert s.preset_names()["poses"] == "vio_realtime"
-    # the worker, asked for in a file under plain vio, brings klt too; a named sift stays
+    assert s.preset_names()["poses"] == "vio"  # the former name resolves to the same settings
+    # the inline window, asked for in a file, keeps klt unless a matcher is named: vio_offline is sift
+    inline = {"poses": {"backend": {"kind": "inline"}}}
+    assert isinstance(resolve_config({"poses": name}, inline)[0].matcher, SiftSettings)
+    assert isinstance(resolve_config({"poses": "vio_offline"})[0].matcher, SiftSettings)
+    # the worker, asked for in a file under vio_offline, brings klt too; a named sift stays
     worker = {"poses": {"backend": {"kind": "process"}}}
-    assert isinstance(resolve_config({"poses": "vio"}, worker)[0].matcher, KltSettings)
-    assert isinstance(resolve_config({"poses": "vio", "matcher": "sift"}, worker)[0].matcher, SiftSettings)
+    assert isinstance(resolve_config({"poses": "vio_offline"}, worker)[0].matcher, KltSettings)
+    assert isinstance(resolve_config({"poses": "vio_offline", "matcher": "sift"}, worker)[0].matcher, SiftSettings)
 
 
-@pytest.mark.parametrize("poses, expected", [("gt", "sfm"), ("imu", "sfm"), ("vio", "sfm"), ("vio_realtime", "vio")])
+@pytest.mark.parametrize("poses, expected", [("gt", "sfm"), ("imu", "sfm"), ("vio_offline", "sfm"), ("vio", "vio"),
+                                                 ("vio_realtime", "vio")])
 def test_the_points_follow_the_pose_source_when_nothing_names_them(poses, expected):
-    """``vio_realtime`` (the camera-rate configuration) reads the odometry's own landmarks instead
+    """``vio`` (the camera-rate configuration) reads the odometry's own landmarks instead
     of matching and triangulating every frame a second time; the other pose sources pair two-view."""
     assert default_points_spec(POSE_PRESETS[poses]) == expected
     by_flag, _ = resolve_config({"poses": poses})

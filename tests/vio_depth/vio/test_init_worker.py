@@ -22,7 +22,7 @@ from .synthetic import IdMatcher, make_scene
 
 pytest.importorskip("gtsam")
 
-SETTINGS: VioSettings = POSE_PRESETS["vio"]
+SETTINGS: VioSettings = POSE_PRESETS["vio_offline"]
 
 
 @pytest.fixture(scope="module")

@@ -66,7 +66,7 @@ def test_sfm_refuses_too_few_tracks(scene):
 
 def _aligned(scene, imu=None, T=None, times=None, settings=VioInitSettings()):
     imu = scene.imu if imu is None else imu
-    params = preintegration_params(imu, POSE_PRESETS["vio"].imu)
+    params = preintegration_params(imu, POSE_PRESETS["vio_offline"].imu)
     s_true = 3.7  # reconstruction units per ... : positions divided by it
     T_true = scene.T_w_c[KEYS] if T is None else T
     T_c0 = np.stack([invert_transform(T_true[0]) @ Tk for Tk in T_true])

@@ -22,7 +22,7 @@ from .synthetic import IdMatcher, creeping, make_scene
 
 pytest.importorskip("gtsam")
 
-SETTINGS = POSE_PRESETS["vio"]
+SETTINGS = POSE_PRESETS["vio_offline"]
 STILL_S = 2.0  # the creeping scenes rest until then (static start at 1 s), then creep
 
 

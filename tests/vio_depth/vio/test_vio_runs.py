@@ -24,8 +24,9 @@ N = 34  # the dynamic start of the room sample needs about 25 frames
 
 def _run(root: Path, out: Path):
     seq = open_sequence(root)
-    settings = PipelineSettings.from_presets(poses="vio", pairing="indoor")
-    summary = run_sequence(seq, Pipeline(settings, sequence=seq), out, RunSettings(max_eval_depth=10.0), progress=False)
+    settings = PipelineSettings.for_pose_source("vio", pairing="indoor")  # as `vio-depth run --poses vio`
+    with Pipeline(settings, sequence=seq) as pipeline:
+        summary = run_sequence(seq, pipeline, out, RunSettings(max_eval_depth=10.0), progress=False)
     _, records = read_frames_jsonl(out / "frames.jsonl")
     for r in records:
         r.pop("timings"), r.pop("seconds")
@@ -44,8 +45,8 @@ def test_sequence_poses_are_never_used(tmp_path, native_prefix):
     assert s1.frames_with_depth == s2.frames_with_depth >= N - 3
     assert s2.trajectory["reference_poses"] == 0 and s1.trajectory["reference_poses"] == N
     statuses = [r["pose_status"] for r in rec2]
-    assert statuses[0] in ("initialising", "retroactive") and statuses[-1] == "tracking"
-    assert "retroactive" in statuses  # the frames of the initialisation, posed in the backward pass
+    # the clip ends before the worker's start is due: its frames are posed afterwards (retroactive)
+    assert statuses.count("retroactive") >= N - 3, statuses
 
 
 def test_true_poses_only_evaluate(tmp_path, native_prefix):
@@ -57,15 +58,17 @@ def test_true_poses_only_evaluate(tmp_path, native_prefix):
 
 
 def test_stream_with_imu_pushed_per_frame_equals_the_sequence_pipeline():
+    """Frame by frame, with the odometry's window in its worker (``--poses vio``) in both: the same
+    statuses and poses (the worker's updates are taken over a fixed number of frames later)."""
     seq = open_sequence(ROOM)
     imu = seq.imu
-    settings = PipelineSettings.from_presets(poses="vio", pairing="indoor")
+    settings = PipelineSettings.for_pose_source("vio", pairing="indoor")
     pipeline = Pipeline(settings, sequence=seq)
     stream = FrameStream(seq.camera, settings, imu_calibration=imu)
     disparity = create_disparity_source(DisparitySettings(), seq)
     t_prev = -np.inf
     posed = 0
-    for i in range(30):
+    for i in range(60):
         frame = seq[i]
         new = (imu.t > t_prev) & (imu.t <= frame.timestamp + 0.01)
         t_prev = frame.timestamp + 0.01
@@ -76,7 +79,8 @@ def test_stream_with_imu_pushed_per_frame_equals_the_sequence_pipeline():
         if a.frame_pose.ok:
             np.testing.assert_array_equal(a.frame_pose.T_w_c, b.frame_pose.T_w_c)
             posed += 1
-    assert posed >= 3
+    pipeline.close(), stream.close()
+    assert posed >= 3, posed
 
 
 def test_vio_needs_an_imu_one_clear_line(tmp_path, capsys, mini_street):
@@ -124,20 +128,21 @@ def test_vio_end_to_end_on_a_generated_asl_sample(tmp_path, capsys):
 
 
 def test_a_clip_that_ends_before_the_worker_s_start_is_due_gets_depth_offline(tmp_path, native_prefix):
-    """``vio_realtime`` (the window and the initialisation attempts in a worker, taken over frames
+    """``--poses vio`` (the window and the initialisation attempts in a worker, taken over frames
     later) on 34 room frames: the start is due after the clip's last frame, so the forward pass
-    posed no frame; the run takes it over at the end (Pipeline.finish_sequence) and the backward
-    pass gives the clip its depth -- before that, 0 of 34 frames (a 40-frame ASL clip: 0 of 40)."""
+    posed no frame; the run takes it over at the end (Pipeline.finish_sequence), replays the frames
+    forwards with those poses and then backwards: before that, 0 of 34 frames had depth (a 40-frame
+    ASL clip: 0 of 40); measured 33 of 34, AbsRel 0.0144 (oracle fit 0.0116), ATE 0.33 % of the path."""
     seq = open_sequence(native_prefix(ROOM, tmp_path / "seq", N))
-    settings = PipelineSettings.for_pose_source("vio_realtime", pairing="indoor")
+    settings = PipelineSettings.for_pose_source("vio", pairing="indoor")
     with Pipeline(settings, sequence=seq) as pipeline:
         summary = run_sequence(seq, pipeline, tmp_path / "out", RunSettings(max_eval_depth=10.0), progress=False)
     _, records = read_frames_jsonl(tmp_path / "out" / "frames.jsonl")
     with_depth = [r for r in records if r["status"] == "ok"]
-    assert summary.frames_with_depth == len(with_depth) >= N - 12, summary.status_counts
+    assert summary.frames_with_depth == len(with_depth) >= N - 3, summary.status_counts
     assert all(r.get("backfilled") for r in with_depth)  # none in the forward pass
-    assert all(r["pose_status"] == "retroactive" for r in with_depth)
-    # measured: 26 frames, AbsRel 0.0127 (oracle fit 0.0116), ATE 0.33 % of the path
+    assert all(r["pose_status"] == "retroactive" for r in with_depth), [r["pose_status"] for r in with_depth]
+    assert sum("poses found at the end" in r["reason"] for r in with_depth) >= N - 10
     m = summary.metrics
-    assert m["vio"]["abs_rel"] < min(0.03, 1.3 * m["oracle"]["abs_rel"]), m
+    assert m["vio"]["abs_rel"] < min(0.03, 1.5 * m["oracle"]["abs_rel"]), m
     assert summary.trajectory["ate"]["ate_fraction_of_path"] < 0.01, summary.trajectory["ate"]
