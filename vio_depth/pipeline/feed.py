@@ -171,6 +171,7 @@ class LazyImuPoses:
         return None if source is None else source.world_pose(frame)
 
     def finish(self) -> None:
+        """The odometry's :meth:`~vio_depth.vio.VioPoseSource.finish` (nothing to settle otherwise)."""
         if isinstance(self.source, VioPoseSource):
             self.source.finish()
 

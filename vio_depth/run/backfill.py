@@ -111,6 +111,8 @@ def backfill_pass(sequence: Sequence, pipeline: Pipeline, n: int, frames_out: Fr
 
 
 def _hand_over(results: dict, why: str, frames_out: FrameWriter, writer: OrderedWriter) -> None:
+    """Each of ``results`` (``{index: (frame, FrameResult)}``) marked ``backfilled`` with ``why``
+    before its reason, made the run's result of its frame and handed to ``writer`` (no journal line)."""
     for i, (frame, res) in results.items():
         res.backfilled = True
         res.reason = f"{why}; {res.reason}".rstrip("; ")
