@@ -21,7 +21,8 @@ A :class:`BundledWeights` says how one file maps onto one kornia module:
 * ``derived_buffers``: module buffers that the module computes in its constructor from its
   configuration and that the file therefore does not carry (LightGlue's
   ``confidence_thresholds``, ALIKED's ``dkd.hw_grid``). They are the only keys allowed to
-  be absent from the file; every *parameter* must come from the file.
+  be absent from the file; every *parameter* must come from the file. A module may keep such a
+  buffer out of its state dict (non-persistent: ALIKED's ``dkd.hw_grid`` since kornia 0.9.2).
 
 torch is imported lazily inside the functions that need it.
 """
@@ -67,7 +68,8 @@ class BundledWeights:
         prefix: only keys starting with this are kept, with it stripped ("" keeps all).
         renames: ``(pattern, replacement)`` regular-expression substitutions applied in order.
         ignored: regular expressions (full match) of file keys that are dropped on purpose.
-        derived_buffers: module buffer names computed by the module itself, absent from the file.
+        derived_buffers: module buffer names computed by the module itself, absent from the file
+            (persistent ones keep the computed value; non-persistent ones are not in the state dict).
     """
 
     package: str
@@ -165,7 +167,9 @@ def load_bundled(module, weights: BundledWeights, purpose: str = "a learned matc
     unexpected = sorted(set(state) - set(own))
     wrong_shape = sorted(k for k in set(state) & set(own) if tuple(state[k].shape) != tuple(own[k].shape))
     problems = []
-    unknown_derived = sorted(set(weights.derived_buffers) - set(own))
+    # a derived buffer may be non-persistent (kept out of the state dict: ALIKED's dkd.hw_grid since
+    # kornia 0.9.2); a declared name that is no buffer at all is a mistake
+    unknown_derived = sorted(set(weights.derived_buffers) - set(own) - {n for n, _ in module.named_buffers()})
     if unknown_derived:
         problems.append(f"declared derived buffers not in the module: {', '.join(unknown_derived)}")
     if missing:
@@ -179,5 +183,6 @@ def load_bundled(module, weights: BundledWeights, purpose: str = "a learned matc
         raise WeightLoadError(f"{weights.label} does not fit {type(module).__name__}: " + "; ".join(problems))
     full = dict(state)
     for name in weights.derived_buffers:
-        full.setdefault(name, own[name])
+        if name in own:  # (a non-persistent one is not loaded at all)
+            full.setdefault(name, own[name])
     module.load_state_dict(full, strict=True)
