@@ -102,7 +102,6 @@ class VioPoseSource:
         has (:meth:`VioEstimator.finish`); the frames it poses then answer :meth:`track` again as
         ``retroactive`` (the backward pass)."""
         self.estimator.finish()
-        self._main_session = None
 
     def world_pose(self, frame: Frame) -> np.ndarray | None:
         """(4, 4) the odometry's latest camera-to-world pose of a tracked frame, or None.

@@ -30,14 +30,19 @@ def scene():
     return make_scene(duration_s=4.0, seed=1)
 
 
+def _poses(est: VioEstimator, n: int) -> np.ndarray:
+    """(n, 4, 4) the odometry's poses of frames 0 .. n-1 (NaN: none)."""
+    nan = np.full((4, 4), np.nan)
+    return np.stack([nan if est.history.pose(i) is None else est.history.pose(i) for i in range(n)])
+
+
 def _run(scene, backend: WindowBackendSettings, settings: VioSettings = SETTINGS, frames: int | None = None):
     est = VioEstimator(scene.imu, IdMatcher(), replace(settings, backend=backend))
     out, flight = [], []
     for k, f in enumerate(scene.frames[:frames]):
         out.append(est.process(f.index, f.timestamp, f.camera, scene.features[k]))
         flight.append(est.backend is not None and est._init.in_flight)
-    nan = np.full((4, 4), np.nan)
-    poses = np.stack([nan if est.history.pose(i) is None else est.history.pose(i) for i in range(len(out))])
+    poses = _poses(est, len(out))
     if est.backend is not None:
         est.backend.close()
     return est, out, poses, flight
@@ -167,8 +172,7 @@ def _finished(scene, backend: WindowBackendSettings, frames: int):
     est = VioEstimator(scene.imu, IdMatcher(), replace(SETTINGS, backend=backend))
     out = [est.process(f.index, f.timestamp, f.camera, scene.features[k]) for k, f in enumerate(scene.frames[:frames])]
     est.finish()
-    nan = np.full((4, 4), np.nan)
-    poses = np.stack([nan if est.history.pose(i) is None else est.history.pose(i) for i in range(frames)])
+    poses = _poses(est, frames)
     est.backend.close()
     return est, out, poses
 
@@ -213,10 +217,6 @@ def test_finish_takes_over_a_pending_keyframe_and_changes_nothing_inline(scene):
     def estimator():
         return VioEstimator(scene.imu, IdMatcher(), replace(SETTINGS, backend=backend))
 
-    def history(e, n):
-        return np.stack([e.history.pose(i) if e.history.pose(i) is not None else np.full((4, 4), np.nan)
-                         for i in range(n)])
-
     est, cont = estimator(), estimator()
     k = 0
     for k, f in enumerate(scene.frames):
@@ -226,7 +226,7 @@ def test_finish_takes_over_a_pending_keyframe_and_changes_nothing_inline(scene):
             break
     pending = est.landmarks.pending
     assert pending is not None and pending not in est.landmarks.window.keyframe_ids
-    before = history(est, k + 1)
+    before = _poses(est, k + 1)
     est.finish()
     assert est.landmarks.pending is None and pending in est.landmarks.window.keyframe_ids
     j = k
@@ -239,7 +239,7 @@ def test_finish_takes_over_a_pending_keyframe_and_changes_nothing_inline(scene):
         np.testing.assert_allclose(est.landmarks.window.pose(kf), cont.landmarks.window.pose(kf), rtol=0, atol=1e-9)
     np.testing.assert_allclose(est.history.pose(pending), est.landmarks.window.pose(pending), rtol=0, atol=1e-12)
     assert not np.allclose(est.history.pose(pending), before[pending], rtol=0, atol=1e-9)  # the refined pose
-    poses = history(est, k + 1)
+    poses = _poses(est, k + 1)
     posed = np.flatnonzero(np.isfinite(poses[:, 0, 0]))
     assert set(posed) >= set(np.flatnonzero(np.isfinite(before[:, 0, 0])))
     fraction, scale = _ate_fraction(scene, poses, posed)
@@ -249,6 +249,5 @@ def test_finish_takes_over_a_pending_keyframe_and_changes_nothing_inline(scene):
 
     est_inline, _, poses_inline, _ = _run(scene, WindowBackendSettings("inline"), frames=k + 1)
     est_inline.finish()
-    after = np.stack([est_inline.history.pose(i) if est_inline.history.pose(i) is not None
-                      else np.full((4, 4), np.nan) for i in range(k + 1)])
+    after = _poses(est_inline, k + 1)
     np.testing.assert_array_equal(after, poses_inline)
